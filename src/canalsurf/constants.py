@@ -1,0 +1,78 @@
+"""Tuning constants of the pipeline, in one place, each with where it comes from.
+
+Lengths are relative (to the first radius estimate ``r0`` or to the point spacing) so that a result
+never depends on the units or placement of the input.
+"""
+
+import math
+
+# --- normals -------------------------------------------------------------------------------------
+#: Neighbours of the regression plane.  16 is the usual choice for PCA normals (Hoppe et al. 1992);
+#: fewer makes the plane follow the noise, more blurs the cross-section on thin tubes.
+NORMAL_NEIGHBOURS = 16
+#: Neighbours used for the orientation spanning tree (a sparser graph suffices and is faster).
+ORIENT_NEIGHBOURS = 8
+
+# --- shrinking (paper, Section 2.1 and 3) ---------------------------------------------------------
+#: Break portion mu: the paper used mu >= 0.7 "for most examples".
+MU = 0.7
+#: tau = cos(80 deg), the paper's value for every canal example.
+TAU = math.cos(math.radians(80.0))
+#: Shrink step delta as a fraction of r0.  The paper's 0.2 (r = 1) and 0.05 (r = 0.3) are 1/5 - 1/6 of r;
+#: a finer step locates the collapse better and costs only more cheap iterations.
+DELTA_PER_RADIUS = 1 / 20
+#: Neighbour radius R as a fraction of r0.  Must exceed r * (normal angle error) + noise and stay well
+#: below r (NOTES); the paper's 0.2 on r = 1 is this value.
+R_PER_RADIUS = 0.2
+#: R must also exceed the spacing of the collapsed cloud (all points of a length-L tube on its spine);
+#: this many times that spacing.
+R_PER_COLLAPSED_SPACING = 3.0
+#: Robust stop for Algorithm 1: the break count has peaked once it falls below this share of its maximum.
+PEAK_DROP = 0.9
+#: ... and a peak only counts once this share of the points break.
+PEAK_MIN_SHARE = 0.1
+#: Robust stop for Algorithm 2: this many moves without a newly stopped point (after half stopped).
+PATIENCE = 3
+#: Shrinking never moves a point farther than this many r0 (a hard bound on the iterations).
+MAX_SHRINK_PER_RADIUS = 4.0
+
+# --- moving least squares (Section 2.2) -----------------------------------------------------------
+#: Weighting radius H as a fraction of r0: must exceed the thickness of the shrunk cloud, while every
+#: extra unit biases curved spines (NOTES: 0.4 - 0.6 r works for pipes).
+H_PER_RADIUS = 0.6
+#: The shrunk cloud is decimated on a voxel grid of this fraction of H before thinning, so that the
+#: cost does not grow with the square of the points in a neighbourhood at collapse.
+MLS_VOXEL_PER_H = 0.25
+
+# --- ordering and spine ---------------------------------------------------------------------------
+#: Voxel size of the thin set for ordering, as a fraction of H.
+ORDER_VOXEL_PER_H = 0.5
+#: Spanning-tree links longer than this many median links are cut before ordering (stray points).
+ORDER_CUT_LINKS = 5.0
+#: Interior knot spacing of the spine spline, in r0: spine features of a regular tube are no sharper
+#: than its radius (r * curvature < 1).
+SPINE_KNOTS_PER_RADIUS = 1.5
+#: At least this many data points per spine spline segment, so each segment is well determined.
+POINTS_PER_SEGMENT = 25
+#: Interior knot spacing of the radius function, in r0 (a radius varies more slowly than the spine bends).
+RADIUS_KNOTS_PER_RADIUS = 3.0
+#: Second-difference penalty weight (P-spline) relative to the data term.
+SMOOTHING = 1e-3
+
+# --- refinement with all points -------------------------------------------------------------------
+#: Gauss-Newton passes of the joint spine/radius fit.
+REFINE_ITERATIONS = 8
+#: Residuals beyond this many robust standard deviations are treated as outliers.
+OUTLIER_SIGMAS = 3.0
+
+# --- pipe or canal --------------------------------------------------------------------------------
+#: A radius function is kept (kind "canal") only if it varies by more than this share of its mean
+#: (besides winning on the Bayesian information criterion).
+CANAL_MIN_VARIATION = 0.05
+
+# --- pipeline -------------------------------------------------------------------------------------
+#: mu of Algorithm 2 under the automatic stop: keep shrinking until nearly all points stopped (the
+#: patience rule ends it); the paper's 0.8 stops while the thick end of a canal is still shrinking.
+MU_CANAL_AUTO = 0.98
+#: Fewer points than this share reaching the spine means the shape is not a tube.
+MIN_KEPT_SHARE = 0.3

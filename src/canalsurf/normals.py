@@ -1,0 +1,109 @@
+"""Stage 1: point normals by local regression planes, oriented outward.
+
+The paper estimates each normal as the normal of the regression plane of the neighbouring points and
+assumes it points outward.  Orientation is not given by the plane; it is propagated over a minimum
+spanning tree of the neighbour graph (Hoppe et al. 1992) so neighbouring normals agree, and one global
+sign per connected part is chosen by a mean-curvature vote: on any regular tube -- partial scans
+included -- outward normals diverge, so ``sum (n_j - n_i) . (p_j - p_i)`` over neighbour pairs is positive.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+from .constants import NORMAL_NEIGHBOURS, ORIENT_NEIGHBOURS
+
+__all__ = ["estimate_normals", "orient_normals"]
+
+
+def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    nbr = points[idx]  # (N, k, 3)
+    centred = nbr - nbr.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", centred, centred)
+    _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues: column 0 is the plane normal
+    return vecs[:, :, 0]
+
+
+def estimate_normals(points: np.ndarray, *, k: int | None = None, tree: cKDTree | None = None) -> np.ndarray:
+    """Unit normals of the regression planes of the ``k`` nearest neighbours, oriented outward.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+    k : int, optional
+        Neighbourhood size (default 16).  Raise it for noisy or dense scans so that a neighbourhood
+        spans clearly more than the noise; lower it for tubes only a few points around.
+    tree : scipy.spatial.cKDTree, optional
+        A tree already built on ``points``.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+    """
+    k = NORMAL_NEIGHBOURS if k is None else int(k)
+    k = min(k, len(points))
+    tree = cKDTree(points) if tree is None else tree
+    _, idx = tree.query(points, k=k, workers=-1)
+    normals = _pca_normals(points, idx)
+    return orient_normals(points, normals, idx[:, : min(k, ORIENT_NEIGHBOURS + 1)])
+
+
+def _propagated_signs(parent: np.ndarray, flip: np.ndarray) -> np.ndarray:
+    """Product of ``flip`` along each node's path to its root, by pointer jumping (log depth passes)."""
+    sign = flip.copy()
+    anc = parent.copy()
+    while True:
+        done = anc == parent[anc]  # anc is a root (its own parent)
+        if done.all():
+            break
+        nxt = ~done
+        sign[nxt] *= sign[anc[nxt]]
+        anc[nxt] = anc[anc[nxt]]
+    return sign
+
+
+def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """Flip ``normals`` so they agree along a spanning tree and point outward.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+    neighbours : ndarray of int, shape (N, k)
+        Neighbour indices of each point (the first column may be the point itself).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        A new array; the input is not changed.
+    """
+    n = len(points)
+    rows = np.repeat(np.arange(n), neighbours.shape[1])
+    cols = neighbours.ravel()
+    keep = rows != cols
+    rows, cols = rows[keep], cols[keep]
+    # Weight 1 - |cos| prefers links between nearly parallel normals; the floor keeps zero-weight
+    # links (which sparse graphs would drop) in the graph.
+    weight = 1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-6
+    graph = coo_matrix((weight, (rows, cols)), shape=(n, n)).tocsr()
+    tree = minimum_spanning_tree(graph + graph.T)
+    n_parts, label = connected_components(tree, directed=False)
+
+    parent = np.arange(n)
+    for part in range(n_parts):
+        root = int(np.flatnonzero(label == part)[0])
+        _, pred = breadth_first_order(tree, root, directed=False, return_predecessors=True)
+        members = pred >= 0
+        parent[members] = pred[members]
+    flip = np.ones(n)
+    child = parent != np.arange(n)
+    flip[child] = np.sign(np.einsum("ij,ij->i", normals[child], normals[parent[child]]))
+    flip[flip == 0] = 1.0
+    oriented = normals * _propagated_signs(parent, flip)[:, None]
+
+    vote = np.einsum("ij,ij->i", oriented[cols] - oriented[rows], points[cols] - points[rows])
+    part_vote = np.bincount(label[rows], weights=vote, minlength=n_parts)
+    oriented *= np.where(part_vote[label] < 0, -1.0, 1.0)[:, None]
+    return oriented

@@ -1,0 +1,91 @@
+"""Stage 5: the radius -- a first estimate from curvature, Eq. (6) for a pipe, r(t) for a canal.
+
+A first radius ``r0`` sets the scale of every automatic parameter.  It is the median over the points
+of ``1 / kappa_max``, the larger principal curvature of the normal field (on a tube the curvature
+around the tube), from a least-squares fit of the normal differences of each neighbourhood.
+
+After shrinking and thinning, the paper's radius is the mean distance between each input point and
+its thinned image (Eq. 6); for a canal the per-point radii ``r_i`` are fitted by a smoothing spline.
+Whether a tube is a pipe or a canal is decided by the Bayesian information criterion of the two fits,
+and a radius function must also vary by more than ``CANAL_MIN_VARIATION`` of its mean.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .constants import CANAL_MIN_VARIATION
+
+__all__ = ["curvature_radius", "pipe_radius", "prefer_canal"]
+
+
+def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
+                     tree: cKDTree | None = None) -> float:
+    """Median of ``1 / kappa_max`` over the points: a first estimate of the tube radius.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+        Points and consistently oriented unit normals.
+    k : int
+        Neighbourhood size of the curvature fit.
+    tree : cKDTree, optional
+
+    Returns
+    -------
+    float
+    """
+    tree = cKDTree(points) if tree is None else tree
+    _, idx = tree.query(points, k=min(k, len(points)), workers=-1)
+    dp = points[idx] - points[:, None, :]
+    dn = normals[idx] - normals[:, None, :]
+    # Tangent basis of each point: any two unit vectors orthogonal to the normal.
+    helper = np.where(np.abs(normals[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    e1 = np.cross(normals, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(normals, e1)
+    basis = np.stack([e1, e2], axis=2)  # (N, 3, 2)
+    a = np.einsum("nki,nij->nkj", dp, basis)
+    b = np.einsum("nki,nij->nkj", dn, basis)
+    # Shape operator W with dn = W dp in the tangent plane: least squares, then symmetrised.
+    ata = np.einsum("nki,nkj->nij", a, a) + 1e-12 * np.eye(2)
+    atb = np.einsum("nki,nkj->nij", a, b)
+    W = np.linalg.solve(ata, atb)
+    W = 0.5 * (W + np.swapaxes(W, 1, 2))
+    kappa = np.linalg.eigvalsh(W)[:, -1]
+    kappa = kappa[np.isfinite(kappa) & (kappa > 0)]
+    if len(kappa) == 0:
+        return float("inf")
+    return float(1.0 / np.median(kappa))
+
+
+def pipe_radius(points: np.ndarray, thin: np.ndarray) -> float:
+    """Eq. (6): the mean distance between each point and its thinned image."""
+    return float(np.linalg.norm(points - thin, axis=1).mean())
+
+
+def prefer_canal(rss_pipe: float, rss_canal: float, n: int, extra_parameters: int,
+                 radius_samples: np.ndarray) -> bool:
+    """True when a radius function explains the data clearly better than a constant radius.
+
+    Parameters
+    ----------
+    rss_pipe, rss_canal : float
+        Residual sums of squares of the two fits on the same points.
+    n : int
+        Number of those points.
+    extra_parameters : int
+        Coefficients the radius function has beyond the constant.
+    radius_samples : ndarray
+        The fitted radius function sampled along the spine.
+
+    Returns
+    -------
+    bool
+    """
+    if rss_canal <= 0:
+        return True
+    bic_gain = n * np.log(max(rss_pipe, 1e-300) / rss_canal) - extra_parameters * np.log(n)
+    variation = np.ptp(radius_samples) / np.mean(radius_samples)
+    return bool(bic_gain > 0 and variation > CANAL_MIN_VARIATION)

@@ -1,0 +1,250 @@
+"""Stage 5b: geometric refinement of spine and radius with all points.
+
+The shrinking/MLS spine and the paper's radii are a first estimate.  This stage fits them to the
+input points directly: it minimises the sum of squared distances of the points from the canal surface,
+
+    e_i = min_t ( |P_i - C(t)| - r(t) ),
+
+(the distance from a point outside to the envelope of the spheres), over the spine's control points
+and the radius coefficients, by Gauss-Newton with the footpoints t_i held fixed in each linearisation
+(at the minimiser the derivative with respect to t vanishes).  Residuals far beyond the noise are
+given zero weight (stray points).  For an open spine the curve is trimmed or extended to the range of
+the footpoints, so that it ends where the tube ends, and re-parameterised by arc length each pass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.interpolate import BSpline
+from scipy.sparse.linalg import spsolve
+from scipy.spatial import cKDTree
+
+from .constants import OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
+from .spine import arclength_reparametrize, constant_spline, curve_length, design_matrix, n_coefficients, penalty
+
+__all__ = ["footpoints", "refine", "RefineResult", "robust_sigma"]
+
+#: Newton steps of the footpoint search after the nearest dense sample.
+FOOTPOINT_NEWTON_STEPS = 4
+#: Levenberg-Marquardt damping factors tried in turn until the cost falls.
+LM_DAMPING = (1e-3, 1e-1, 1.0, 10.0, 100.0)
+#: Dense samples of the spine per unit of its parameter for the footpoint start values.
+FOOTPOINT_SAMPLES = 4000
+
+
+def robust_sigma(residual: np.ndarray) -> float:
+    """Standard deviation from the median absolute deviation (1.4826 MAD)."""
+    return float(1.4826 * np.median(np.abs(residual - np.median(residual))))
+
+
+def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *,
+               closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter of the characteristic circle nearest to each point, and the signed distance.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+    spine, radius : BSpline
+    closed : bool
+        Parameters wrap around [0, 1); else they are clamped to [0, 1].
+
+    Returns
+    -------
+    t : ndarray, shape (N,)
+    distance : ndarray, shape (N,)
+        ``|P - C(t)| - r(t)``: positive outside the surface.
+    """
+    ts = np.linspace(0.0, 1.0, FOOTPOINT_SAMPLES)
+    _, j = cKDTree(spine(ts)).query(points, workers=-1)
+    t = ts[j]
+    d1, d2 = spine.derivative(1), spine.derivative(2)
+    r1, r2 = radius.derivative(1), radius.derivative(2)
+    for _ in range(FOOTPOINT_NEWTON_STEPS):
+        diff = points - spine(t)
+        dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
+        u = diff / dist[:, None]
+        c1, c2 = d1(t), d2(t)
+        uc1 = np.einsum("ij,ij->i", u, c1)
+        grad = -uc1 - r1(t)
+        curv = (np.einsum("ij,ij->i", c1, c1) - uc1**2) / dist - np.einsum("ij,ij->i", u, c2) - r2(t)
+        # A non-positive second derivative means Newton would climb; fall back to a short
+        # gradient step scaled like |C'|^2 / d.
+        curv = np.maximum(curv, 0.25 * np.einsum("ij,ij->i", c1, c1) / dist)
+        t = t - grad / curv
+        t = np.mod(t, 1.0) if closed else np.clip(t, 0.0, 1.0)
+    return t, np.linalg.norm(points - spine(t), axis=1) - radius(t)
+
+
+@dataclass
+class RefineResult:
+    """Refined spine and radius.
+
+    Attributes
+    ----------
+    spine, radius : BSpline
+    t : ndarray
+        Footpoint parameter of each point.
+    residual : ndarray
+        Signed distance of each point from the surface.
+    inlier : ndarray of bool
+        Points used in the fit (not stray).
+    iterations : int
+    """
+
+    spine: BSpline
+    radius: BSpline
+    t: np.ndarray
+    residual: np.ndarray
+    inlier: np.ndarray
+    iterations: int
+
+
+def _extended(f: BSpline, straight: bool):
+    """``f`` continued beyond [0, 1] by its tangent line (``straight``) or its end value.
+
+    A cubic's own end polynomial curls away when extrapolated; a tube that goes on past the current
+    end of the spine goes on (locally) straight.
+    """
+    d = f.derivative()
+
+    def g(t):
+        t = np.asarray(t, float)
+        inside = np.clip(t, 0.0, 1.0)
+        out = f(inside)
+        if straight:
+            over = (t - inside).reshape(t.shape + (1,) * (out.ndim - t.ndim))
+            out = out + over * d(inside)
+        return out
+
+    return g
+
+
+def _end(s: np.ndarray, scale: float) -> float:
+    """Where a tube ends, from the arc-length positions ``s`` of its footpoints (ascending).
+
+    The smallest footpoint overshoots an end by ``r tan(a)`` when the spine's end tangent is off by
+    ``a``; the mean of the k points within ``scale`` of the end does not: for a uniform density
+    ``lam`` ending sharply at ``e`` it is ``e + k / (2 lam)``.
+    """
+    k = max(int(np.searchsorted(s, s[0] + scale)), 1)
+    inner = np.searchsorted(s, s[0] + 3 * scale) - k
+    lam = max(inner, 1) / (2 * scale)
+    return float(s[:k].mean() - k / (2 * lam))
+
+
+def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool, spine_segments: int,
+           radius_segments: int | None, iterations: int = REFINE_ITERATIONS,
+           reach: float = 0.0) -> RefineResult:
+    """Fit spine and radius to the points by robust Gauss-Newton.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+    spine, radius : BSpline
+        Start values, parameter t in [0, 1].
+    closed : bool
+    spine_segments : int
+        Knot intervals of the spine.
+    radius_segments : int or None
+        Knot intervals of the radius function; ``None`` for a constant radius (a pipe).
+    iterations : int
+    reach : float
+        How far (in length units) an open spine may grow past each end per pass; it is then trimmed
+        to where the footpoints actually lie, so that it ends where the tube ends.
+
+    Returns
+    -------
+    RefineResult
+    """
+    n = len(points)
+    inlier = np.ones(n, bool)
+    for it in range(iterations + 1):
+        segs, rsegs = spine_segments, radius_segments
+        if closed:
+            spine, extra, _ = arclength_reparametrize(
+                spine, n_segments=segs, closed=True,
+                extra=[] if rsegs is None else [(radius, rsegs)])
+        else:
+            # Fit on the spine continued straight for ``reach`` past each end: points beyond the
+            # current end then meet the tube's continuation, not the end sphere.  The margins without
+            # points stay straight under the penalty and are trimmed off after the step.
+            ext = reach / max(curve_length(spine), 1e-300)
+            segs = int(np.ceil(spine_segments * (1 + 2 * ext)))
+            rsegs = None if rsegs is None else int(np.ceil(radius_segments * (1 + 2 * ext)))
+            spine, extra, _ = arclength_reparametrize(
+                _extended(spine, True), n_segments=segs, closed=False, a=-ext, b=1 + ext,
+                extra=[] if rsegs is None else [(_extended(radius, False), rsegs)])
+        if rsegs is not None:
+            radius = extra[0]
+        t, res = footpoints(points, spine, radius, closed=closed)
+        cut = OUTLIER_SIGMAS * max(robust_sigma(res), 1e-12 * curve_length(spine))
+        inlier = np.abs(res - np.median(res)) <= cut
+        if it < iterations:
+            # Levenberg-Marquardt: accept a step only if the truncated cost (outliers count as
+            # ``cut``) falls with re-computed footpoints; otherwise damp harder.
+            cost = np.minimum(res**2, cut**2).sum()
+            for damping in LM_DAMPING:
+                new_spine, new_radius = _gauss_newton_step(points, t, inlier, spine, radius, segs, rsegs,
+                                                           closed, damping)
+                new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed)
+                if np.minimum(new_res**2, cut**2).sum() < cost:
+                    spine, radius, t, res = new_spine, new_radius, new_t, new_res
+                    break
+        if not closed:
+            length = curve_length(spine)
+            ti = np.sort(t[inlier]) * length
+            scale = max(reach, 1e-12 * length)
+            lo = max(_end(ti, scale), 0.0) / length
+            hi = min(length - _end(length - ti[::-1], scale), length) / length
+            spine, extra, _ = arclength_reparametrize(
+                spine, n_segments=spine_segments, closed=False, a=lo, b=hi,
+                extra=[] if rsegs is None else [(radius, radius_segments)])
+            if rsegs is not None:
+                radius = extra[0]
+
+    t, res = footpoints(points, spine, radius, closed=closed)
+    return RefineResult(spine, radius, t, res, inlier, iterations)
+
+
+def _gauss_newton_step(points, t, inlier, spine, radius, segs, rsegs, closed, damping):
+    """One damped Gauss-Newton step on the coefficients, footpoints ``t`` held fixed."""
+    n = len(points)
+    m = n_coefficients(segs, closed)
+    diff = points - spine(t)
+    dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-300)
+    u = diff / dist[:, None]
+    e = dist - radius(t)
+    w = inlier.astype(float)
+    B = design_matrix(t, segs, closed)
+    blocks = [B.multiply(-u[:, [a]]) for a in range(3)]
+    coef = [spine.c[:m, a] for a in range(3)]
+    pens = [penalty(segs, closed)] * 3
+    if rsegs is None:
+        blocks.append(sparse.csr_matrix(-np.ones((n, 1))))
+        coef.append(np.array([radius.c[0]]))
+        pens.append(sparse.csr_matrix((1, 1)))
+    else:
+        mr = n_coefficients(rsegs, closed)
+        blocks.append(-design_matrix(t, rsegs, closed))
+        coef.append(radius.c[:mr])
+        pens.append(penalty(rsegs, closed))
+    J = sparse.hstack(blocks).tocsr()
+    x = np.concatenate(coef)
+    JtW = J.T.multiply(w).tocsr()
+    lam = SMOOTHING * w.sum() / m
+    Pen = sparse.block_diag(pens).tocsr()
+    JtWJ = JtW @ J
+    A = (JtWJ + lam * Pen + damping * sparse.diags(JtWJ.diagonal() + 1e-12)).tocsc()
+    x_new = x + spsolve(A, -(JtW @ e) - lam * (Pen @ x))
+
+    ctrl = x_new[: 3 * m].reshape(3, m).T
+    if closed:
+        ctrl = np.vstack([ctrl, ctrl[:3]])
+    new_spine = BSpline(spine.t, ctrl, 3)
+    rad = x_new[3 * m:]
+    if rsegs is None:
+        return new_spine, constant_spline(float(rad[0]))
+    return new_spine, BSpline(radius.t, np.concatenate([rad, rad[:3]]) if closed else rad, 3)

@@ -1,0 +1,225 @@
+"""Stage 2: shrinking (paper, Section 2.1, Algorithm 1 for pipes and Algorithm 2 for canals).
+
+Every point moves against its outward normal in steps of ``delta``.  After each move the points whose
+neighbourhood of radius ``R`` holds a point with an (almost) opposite normal are counted: they have met
+the other side of the tube, i.e. reached the spine.
+
+* Algorithm 1 (``kind="pipe"``): all points move together; the break count is the number of points with
+  an opposite neighbour (``N_i . N_j < 0``).
+* Algorithm 2 (``kind="canal"``): a point stops for good when it meets a neighbour with ``N_i . N_j < tau``;
+  the break count is the number of stopped points.
+
+Stopping.  ``stop="paper"`` is the printed rule: stop once the break count reaches ``mu * n``.  As printed
+it can fail to stop (the count may peak below ``mu * n``; with ``mu = 1`` a few points never meet the other
+side).  ``stop="auto"`` (default) adds robust rules: Algorithm 1 also stops when the break count has passed
+its peak and returns the state at the peak; Algorithm 2 also stops after ``PATIENCE`` moves without a newly
+stopped point and drops the points that never stopped.  The result records which rule fired.
+
+Neighbours.  ``neighbours="kdtree"`` finds all pairs within ``R`` on a KD-tree;
+``neighbours="gauss"`` is the paper's grouping: normals are hashed into latitude/longitude cells of the
+Gauss map and a point is only checked against the points of the antipodal cell.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .constants import MAX_SHRINK_PER_RADIUS, PATIENCE, PEAK_DROP, PEAK_MIN_SHARE
+
+__all__ = ["ShrinkResult", "shrink", "break_mask"]
+
+#: Latitude x longitude cells of the paper's Gauss-map grouping (the paper leaves a, b open).
+GAUSS_CELLS = (6, 12)
+
+
+@dataclass
+class ShrinkResult:
+    """Outcome of shrinking.
+
+    Attributes
+    ----------
+    points : ndarray, shape (N, 3)
+        The shrunk cloud S-hat (all input points; see ``keep``).
+    keep : ndarray of bool, shape (N,)
+        Points that reached the spine.  All true for Algorithm 1; for Algorithm 2 the stopped points.
+    distance : ndarray, shape (N,)
+        Distance each point moved: a first estimate of the radius there.
+    iterations : int
+        Number of delta moves ("iteration steps" in the paper).
+    break_counts : ndarray of int
+        Break count after 0, 1, ..., ``iterations`` moves.
+    stop_rule : str
+        ``"mu"`` (break count reached mu * n), ``"peak"``, ``"patience"`` or ``"max-moves"`` (did not stop).
+    converged : bool
+        False only when the iteration bound was hit.
+    """
+
+    points: np.ndarray
+    keep: np.ndarray
+    distance: np.ndarray
+    iterations: int
+    break_counts: np.ndarray
+    stop_rule: str
+    converged: bool
+    history: list = field(default_factory=list, repr=False)
+
+
+def _pairs_kdtree(points: np.ndarray, R: float) -> tuple[np.ndarray, np.ndarray]:
+    pairs = cKDTree(points).query_pairs(R, output_type="ndarray")
+    return pairs[:, 0], pairs[:, 1]
+
+
+def _gauss_cells(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Latitude and longitude cell of each normal on the Gauss-map grid."""
+    a, b = GAUSS_CELLS
+    lat = np.arcsin(np.clip(normals[:, 2], -1, 1))
+    lon = np.arctan2(normals[:, 1], normals[:, 0])
+    k = np.clip(np.floor((lat + np.pi / 2) / np.pi * a).astype(int), 0, a - 1)
+    l = np.floor((lon + np.pi) / (2 * np.pi) * b).astype(int) % b
+    return k, l
+
+
+def _pairs_gauss(points: np.ndarray, R: float, cells: tuple[np.ndarray, np.ndarray]):
+    # A point of cell (k, l) is checked against the antipodal cell and the cells around it: the
+    # antipodal cell alone misses opposite normals that fall just across a cell border (and the
+    # tilted symmetric normals of a canal surface, Figure 10).
+    a, b = GAUSS_CELLS
+    k, l = cells
+    cell = k * b + l
+    rows, cols = [], []
+    for c in np.unique(cell):
+        ck, cl = divmod(int(c), b)
+        mine = np.flatnonzero(cell == c)
+        ak, al = a - 1 - ck, (cl + b // 2) % b
+        near = ((np.abs(k - ak) <= 1)
+                & (np.minimum((l - al) % b, (al - l) % b) <= 1))
+        theirs = np.flatnonzero(near)
+        if len(theirs) == 0:
+            continue
+        hits = cKDTree(points[theirs]).query_ball_point(points[mine], R, workers=-1)
+        counts = np.fromiter((len(h) for h in hits), int, len(hits))
+        if counts.any():
+            rows.append(np.repeat(mine, counts))
+            cols.append(theirs[np.concatenate([h for h in hits if h])])
+    if not rows:
+        return np.empty(0, int), np.empty(0, int)
+    return np.concatenate(rows), np.concatenate(cols)
+
+
+def break_mask(points: np.ndarray, normals: np.ndarray, R: float, tau: float = 0.0,
+               neighbours: str = "kdtree", cells=None) -> np.ndarray:
+    """Points with a neighbour closer than ``R`` whose normal makes ``N_i . N_j < tau``.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+    R : float
+    tau : float
+        0 for the pipe condition (Eq. 1), ``cos(80 deg)`` in the paper's canal examples.
+    neighbours : {"kdtree", "gauss"}
+    cells : tuple, optional
+        Precomputed Gauss-map cells (``neighbours="gauss"`` only).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    if neighbours == "gauss":
+        i, j = _pairs_gauss(points, R, cells if cells is not None else _gauss_cells(normals))
+    else:
+        i, j = _pairs_kdtree(points, R)
+    opposite = np.einsum("ij,ij->i", normals[i], normals[j]) < tau
+    mask = np.zeros(len(points), bool)
+    mask[i[opposite]] = True
+    mask[j[opposite]] = True
+    return mask
+
+
+def shrink(points: np.ndarray, normals: np.ndarray, *, R: float, delta: float, mu: float,
+           tau: float = 0.0, kind: str = "pipe", stop: str = "auto", neighbours: str = "kdtree",
+           max_distance: float, callback=None) -> ShrinkResult:
+    """Shrink a tube's points towards its spine (Algorithm 1 or 2).
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+        Points and outward unit normals.
+    R : float
+        Neighbour radius.  Larger than the gaps of the collapsed cloud and than the normal error times
+        the radius plus the noise; well below the radius.
+    delta : float
+        Step length.  Smaller steps locate the spine better at the cost of more iterations.
+    mu : float
+        Share of points that must break for the printed stop rule (paper: 0.7 - 1.0).
+    tau : float
+        Normal-angle tolerance of Algorithm 2 (``kind="canal"``); ignored for pipes (the condition is < 0).
+    kind : {"pipe", "canal"}
+        Algorithm 1 or Algorithm 2.
+    stop : {"auto", "paper"}
+        ``"paper"``: only the printed ``mu`` rule; ``"auto"``: also the peak / patience rules.
+    neighbours : {"kdtree", "gauss"}
+    max_distance : float
+        No point moves farther than this (bounds the iterations when no rule fires).
+    callback : callable, optional
+        Called as ``callback(moves, break_count)`` after each check.
+
+    Returns
+    -------
+    ShrinkResult
+    """
+    n = len(points)
+    cells = _gauss_cells(normals) if neighbours == "gauss" else None
+    max_moves = int(np.ceil(max_distance / delta))
+    target = mu * n
+    counts: list[int] = []
+
+    if kind == "pipe":
+        for moves in range(max_moves + 1):
+            current = points - (moves * delta) * normals
+            count = int(break_mask(current, normals, R, 0.0, neighbours, cells).sum())
+            counts.append(count)
+            if callback:
+                callback(moves, count)
+            if count >= target:
+                rule, best = "mu", moves
+                break
+            peak = int(np.argmax(counts))
+            if (stop == "auto" and counts[peak] >= PEAK_MIN_SHARE * n
+                    and count < PEAK_DROP * counts[peak]):
+                rule, best = "peak", peak
+                break
+        else:
+            rule, best = "max-moves", max_moves
+        dist = np.full(n, best * delta)
+        return ShrinkResult(points - best * delta * normals, np.ones(n, bool), dist, best,
+                            np.array(counts[: best + 1] if rule == "peak" else counts), rule,
+                            rule != "max-moves")
+
+    stopped = np.zeros(n, bool)
+    dist = np.zeros(n)
+    quiet = 0
+    for moves in range(max_moves + 1):
+        current = points - dist[:, None] * normals
+        newly = break_mask(current, normals, R, tau, neighbours, cells) & ~stopped
+        stopped |= newly
+        count = int(stopped.sum())
+        counts.append(count)
+        if callback:
+            callback(moves, count)
+        if count >= target:
+            rule = "mu"
+            break
+        quiet = 0 if newly.any() else quiet + 1
+        if stop == "auto" and quiet >= PATIENCE and count >= 0.5 * n:
+            rule = "patience"
+            break
+        if moves < max_moves:
+            dist[~stopped] += delta
+    else:
+        rule = "max-moves"
+    keep = stopped if stop == "auto" else np.ones(n, bool)
+    return ShrinkResult(points - dist[:, None] * normals, keep, dist, len(counts) - 1,
+                        np.array(counts), rule, rule != "max-moves")

@@ -1,0 +1,163 @@
+"""Stage 4b: smoothing cubic B-splines (the spine C(t), and the radius r(t) the same way).
+
+Curves are penalised least-squares B-splines (P-splines, Eilers & Marx 1996) on uniform knots in a
+parameter that is normalised arc length, t in [0, 1].  A closed spine is a periodic cubic spline: its
+first three coefficients repeat at the end, so C, C' and C'' match at t = 0 and t = 1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.interpolate import BSpline
+from scipy.sparse.linalg import spsolve
+
+from .constants import SMOOTHING
+
+__all__ = ["constant_spline", "knots", "design_matrix", "coefficients_to_spline", "pspline_fit", "sample_arclength",
+           "arclength_reparametrize", "curve_length"]
+
+DEGREE = 3
+
+
+def constant_spline(value: float) -> BSpline:
+    """The constant ``value`` on [0, 1] as a cubic B-spline (so that every derivative exists and is 0)."""
+    return BSpline(np.r_[np.zeros(DEGREE + 1), np.ones(DEGREE + 1)], np.full(DEGREE + 1, float(value)), DEGREE)
+
+
+def knots(n_segments: int, closed: bool) -> np.ndarray:
+    """Knot vector on [0, 1]: clamped for open curves, periodically extended for closed ones."""
+    inner = np.linspace(0.0, 1.0, n_segments + 1)
+    if closed:
+        h = 1.0 / n_segments
+        return np.concatenate([-h * np.arange(DEGREE, 0, -1), inner, 1 + h * np.arange(1, DEGREE + 1)])
+    return np.concatenate([np.zeros(DEGREE), inner, np.ones(DEGREE)])
+
+
+def n_coefficients(n_segments: int, closed: bool) -> int:
+    """Free coefficients of a spline on ``n_segments`` (periodic ones wrap)."""
+    return n_segments if closed else n_segments + DEGREE
+
+
+def design_matrix(u: np.ndarray, n_segments: int, closed: bool) -> sparse.csr_matrix:
+    """Sparse B-spline basis at ``u`` (values in [0, 1]) with periodic columns folded when ``closed``."""
+    u = np.clip(np.asarray(u, float), 0.0, 1.0)
+    if closed:
+        u = np.where(u >= 1.0, 0.0, u)
+    B = BSpline.design_matrix(u, knots(n_segments, closed), DEGREE).tocsc()
+    if not closed:
+        return B.tocsr()
+    fold = sparse.vstack([sparse.identity(n_segments, format="csr"),
+                          sparse.identity(n_segments, format="csr")[:DEGREE]])
+    return (B @ fold).tocsr()
+
+
+def coefficients_to_spline(coef: np.ndarray, n_segments: int, closed: bool) -> BSpline:
+    """The BSpline of free coefficients ``coef`` (repeat the first ``DEGREE`` when closed)."""
+    coef = np.asarray(coef, float)
+    if closed:
+        coef = np.concatenate([coef, coef[:DEGREE]])
+    return BSpline(knots(n_segments, closed), coef, DEGREE)
+
+
+def penalty(n_segments: int, closed: bool) -> sparse.csr_matrix:
+    """Second-difference penalty matrix D^T D on the free coefficients (cyclic when closed)."""
+    m = n_coefficients(n_segments, closed)
+    if closed:
+        I = sparse.identity(m, format="csr")
+        shift = sparse.eye(m, k=1, format="csr") + sparse.eye(m, k=1 - m, format="csr")
+        D = I - 2 * shift + shift @ shift
+    else:
+        D = sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(max(m - 2, 1), m), format="csr")
+    return (D.T @ D).tocsr()
+
+
+def pspline_fit(u: np.ndarray, values: np.ndarray, *, n_segments: int, closed: bool = False,
+                weights: np.ndarray | None = None, smoothing: float = SMOOTHING) -> BSpline:
+    """Penalised least-squares cubic B-spline through ``values`` at parameters ``u``.
+
+    Parameters
+    ----------
+    u : ndarray, shape (N,)
+        Parameters in [0, 1].
+    values : ndarray, shape (N,) or (N, d)
+    n_segments : int
+        Uniform knot intervals.  More follow sharper features; each needs several data points.
+    closed : bool
+        Periodic spline.
+    weights : ndarray, shape (N,), optional
+    smoothing : float
+        Weight of the second-difference penalty relative to the data (per coefficient).  It keeps
+        segments with little data well posed; at the default it barely changes well-sampled curves.
+
+    Returns
+    -------
+    scipy.interpolate.BSpline
+    """
+    values = np.asarray(values, float)
+    w = np.ones(len(u)) if weights is None else np.asarray(weights, float)
+    B = design_matrix(u, n_segments, closed)
+    m = B.shape[1]
+    BtW = B.T.multiply(w).tocsr()
+    lam = smoothing * w.sum() / m
+    A = (BtW @ B + lam * penalty(n_segments, closed)).tocsc()
+    coef = spsolve(A, BtW @ values)
+    return coefficients_to_spline(np.asarray(coef).reshape((m,) + values.shape[1:]), n_segments, closed)
+
+
+def _dense(spline: BSpline, a: float, b: float, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t = np.linspace(a, b, n)
+    pts = spline(t)
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    return t, pts, np.concatenate([[0.0], np.cumsum(seg)])
+
+
+def curve_length(spline: BSpline, a: float = 0.0, b: float = 1.0, n: int = 4001) -> float:
+    """Length of ``spline`` on [a, b] (polyline of ``n`` samples)."""
+    return float(_dense(spline, a, b, n)[2][-1])
+
+
+def sample_arclength(spline: BSpline, n: int, *, oversample: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters and points of ``n`` samples evenly spaced in arc length over [0, 1].
+
+    Returns
+    -------
+    t : ndarray, shape (n,)
+    points : ndarray, shape (n, d)
+    """
+    t, _, s = _dense(spline, 0.0, 1.0, max(n * oversample, 2001))
+    ti = np.interp(np.linspace(0.0, s[-1], n), s, t)
+    return ti, spline(ti)
+
+
+def arclength_reparametrize(spline: BSpline, *, n_segments: int, closed: bool, a: float = 0.0,
+                            b: float = 1.0, extra: tuple = ()) -> tuple[BSpline, list, callable]:
+    """Refit ``spline`` restricted to [a, b] as a function of normalised arc length.
+
+    Parameters
+    ----------
+    spline : BSpline
+    n_segments : int
+        Knot intervals of the new spline.
+    closed : bool
+    a, b : float
+        Old parameter range kept (a trimmed or extended open curve).
+    extra : tuple of (BSpline, int)
+        Functions of the same old parameter (e.g. the radius) with the segment count to refit them on.
+
+    Returns
+    -------
+    new_spline : BSpline
+    new_extra : list of BSpline
+    to_new : callable
+        Maps old parameters to new ones.
+    """
+    t, pts, s = _dense(spline, a, b, max(40 * n_segments, 2001))
+    u = s / s[-1]
+    new = pspline_fit(u, pts, n_segments=n_segments, closed=closed, smoothing=1e-9)
+    new_extra = [pspline_fit(u, f(t), n_segments=m, closed=closed, smoothing=1e-9) for f, m in extra]
+
+    def to_new(told):
+        return np.interp(told, t, u)
+
+    return new, new_extra, to_new
