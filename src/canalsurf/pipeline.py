@@ -27,7 +27,10 @@ from .shrink import shrink
 from .spine import constant_spline, pspline_fit
 from .thin import mls_thin
 
-__all__ = ["reconstruct"]
+__all__ = ["reconstruct", "STAGES"]
+
+#: Stage names, in the order ``progress`` reports them.
+STAGES = ("normals", "shrink", "thin", "order", "radius", "refine")
 
 log = logging.getLogger(__name__)
 
@@ -36,8 +39,16 @@ MAX_RELATIVE_RESIDUAL = 0.25
 
 
 class _Timer(dict):
+    """Seconds per stage; tells ``progress`` (if any) when a stage starts."""
+
+    def __init__(self, progress=None):
+        super().__init__()
+        self.progress = progress
+
     @contextmanager
     def __call__(self, stage):
+        if self.progress is not None:
+            self.progress(stage)
         start = time.perf_counter()
         yield
         self[stage] = round(time.perf_counter() - start, 4)
@@ -51,7 +62,7 @@ def _segments(length: float, spacing: float, n_points: int) -> int:
 def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = None,
                 delta: float | None = None, mu: float | None = None, tau: float | None = None,
                 H: float | None = None, k: int | None = None, stop: str = "auto",
-                neighbours: str = "kdtree", refine: bool = True) -> CanalModel:
+                neighbours: str = "kdtree", refine: bool = True, progress=None) -> CanalModel:
     """Reconstruct a pipe or canal surface from an unorganized point cloud.
 
     Parameters
@@ -78,6 +89,9 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     refine : bool
         Fit spine and radius to all points after the paper's pipeline (default).  ``False`` returns the
         paper's own result: spline through the thin set, Eq. (6) or the fitted ``r_i``.
+    progress : callable, optional
+        Called with the name of each stage (``"normals"``, ``"shrink"``, ``"thin"``, ``"order"``,
+        ``"radius"``, ``"refine"``) as it starts.
 
     Returns
     -------
@@ -98,7 +112,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     >>> model.kind, round(model.mean_radius, 1)
     ('pipe', 1.0)
     """
-    timer = _Timer()
+    timer = _Timer(progress)
     raw = as_points(points)
     kind = choice(kind, "kind", ("auto", "pipe", "canal"))
     stop = choice(stop, "stop", ("auto", "paper"))
