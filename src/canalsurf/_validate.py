@@ -34,7 +34,10 @@ def as_points(points, name: str = "points", min_points: int = MIN_POINTS) -> np.
 
 def as_normals(normals, n: int) -> np.ndarray:
     """Return ``normals`` as a finite ``(n, 3)`` array of unit vectors, or raise :class:`InputError`."""
-    arr = np.asarray(normals, dtype=np.float64)
+    try:
+        arr = np.asarray(normals, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"normals must be a numeric (N, 3) array, got {type(normals).__name__}") from None
     if arr.shape != (n, 3):
         raise InputError(f"normals must have shape ({n}, 3) like the points, got {arr.shape}")
     if not np.isfinite(arr).all():
@@ -45,11 +48,18 @@ def as_normals(normals, n: int) -> np.ndarray:
     return arr / length[:, None]
 
 
+def _number(value, name: str) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {value!r}") from None
+
+
 def positive(value, name: str) -> float | None:
     """``None`` or a finite float > 0."""
     if value is None:
         return None
-    v = float(value)
+    v = _number(value, name)
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name} must be a positive number, got {value!r}")
     return v
@@ -59,7 +69,7 @@ def in_range(value, name: str, lo: float, hi: float) -> float | None:
     """``None`` or a float in the closed interval ``[lo, hi]``."""
     if value is None:
         return None
-    v = float(value)
+    v = _number(value, name)
     if not (lo <= v <= hi):
         raise InputError(f"{name} must lie in [{lo}, {hi}], got {value!r}")
     return v

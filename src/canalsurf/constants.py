@@ -49,9 +49,10 @@ MLS_VOXEL_PER_H = 0.25
 ORDER_VOXEL_PER_H = 0.5
 #: Spanning-tree links longer than this many median links are cut before ordering (stray points).
 ORDER_CUT_LINKS = 5.0
-#: Interior knot spacing of the spine spline, in r0: spine features of a regular tube are no sharper
+#: Interior knot spacing of the spine spline, in r0 (the smoothing itself is chosen by GCV in the
+#: refinement): spine features of a regular tube are no sharper
 #: than its radius (r * curvature < 1).
-SPINE_KNOTS_PER_RADIUS = 1.5
+SPINE_KNOTS_PER_RADIUS = 1.0
 #: At least this many data points per spine spline segment, so each segment is well determined.
 POINTS_PER_SEGMENT = 25
 #: Interior knot spacing of the radius function, in r0 (a radius varies more slowly than the spine bends).

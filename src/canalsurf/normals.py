@@ -88,7 +88,7 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
     # links (which sparse graphs would drop) in the graph.
     weight = 1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-6
     graph = coo_matrix((weight, (rows, cols)), shape=(n, n)).tocsr()
-    tree = minimum_spanning_tree(graph + graph.T)
+    tree = minimum_spanning_tree(graph.maximum(graph.T))
     n_parts, label = connected_components(tree, directed=False)
 
     parent = np.arange(n)

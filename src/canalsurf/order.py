@@ -84,7 +84,7 @@ def order_curve(points: np.ndarray, *, spacing: float) -> OrderedCurve:
     cols, d = idx[:, 1:].ravel(), dist[:, 1:].ravel()
     ok = d > 0
     graph = coo_matrix((d[ok], (rows[ok], cols[ok])), shape=(len(nodes),) * 2).tocsr()
-    tree = minimum_spanning_tree(graph + graph.T).tocoo()
+    tree = minimum_spanning_tree(graph.maximum(graph.T)).tocoo()
     link = float(np.median(tree.data))
     keep = tree.data <= ORDER_CUT_LINKS * link
     tree = coo_matrix((tree.data[keep], (tree.row[keep], tree.col[keep])), shape=tree.shape).tocsr()

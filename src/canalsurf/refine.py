@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 from scipy.interpolate import BSpline
-from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from .constants import OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
@@ -27,8 +26,13 @@ from .spine import arclength_reparametrize, constant_spline, curve_length, desig
 
 __all__ = ["footpoints", "refine", "RefineResult", "robust_sigma"]
 
-#: Newton steps of the footpoint search after the nearest dense sample.
-FOOTPOINT_NEWTON_STEPS = 4
+#: Most Newton steps of the footpoint search, and the parameter change that counts as converged.
+FOOTPOINT_NEWTON_STEPS = 30
+FOOTPOINT_TOL = 1e-10
+#: Penalty weights tried by generalised cross-validation, relative to the fixed floor SMOOTHING * n / m.
+GCV_GRID = 10.0 ** np.arange(0.0, 6.5, 0.5)
+#: Gaps averaged for the local footpoint spacing at an end.
+END_GAPS = 8
 #: Levenberg-Marquardt damping factors tried in turn until the cost falls.
 LM_DAMPING = (1e-3, 1e-1, 1.0, 10.0, 100.0)
 #: Dense samples of the spine per unit of its parameter for the footpoint start values.
@@ -58,23 +62,45 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *,
         ``|P - C(t)| - r(t)``: positive outside the surface.
     """
     ts = np.linspace(0.0, 1.0, FOOTPOINT_SAMPLES)
-    _, j = cKDTree(spine(ts)).query(points, workers=-1)
-    t = ts[j]
+    centres, radii = spine(ts), radius(ts)
+    # Start at the sample minimising |P - C| - r (on a canal not the nearest centre): only samples
+    # within (nearest distance + spread of r) can win.
+    tree = cKDTree(centres)
+    near_d, near = tree.query(points, workers=-1)
+    t = ts[near]
+    spread = float(np.ptp(radii))
+    if spread > 0:
+        best = near_d - radii[near]
+        cand = tree.query_ball_point(points, near_d + spread, workers=-1)
+        for i, c in enumerate(cand):
+            c = np.asarray(c)
+            f = np.linalg.norm(points[i] - centres[c], axis=1) - radii[c]
+            j = int(np.argmin(f))
+            if f[j] < best[i]:
+                best[i], t[i] = f[j], ts[c[j]]
     d1, d2 = spine.derivative(1), spine.derivative(2)
     r1, r2 = radius.derivative(1), radius.derivative(2)
+    active = np.ones(len(points), bool)
     for _ in range(FOOTPOINT_NEWTON_STEPS):
-        diff = points - spine(t)
-        dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
+        ta = t[active]
+        pa = points[active]
+        diff = pa - spine(ta)
+        dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-300)
         u = diff / dist[:, None]
-        c1, c2 = d1(t), d2(t)
+        c1, c2 = d1(ta), d2(ta)
         uc1 = np.einsum("ij,ij->i", u, c1)
-        grad = -uc1 - r1(t)
-        curv = (np.einsum("ij,ij->i", c1, c1) - uc1**2) / dist - np.einsum("ij,ij->i", u, c2) - r2(t)
-        # A non-positive second derivative means Newton would climb; fall back to a short
-        # gradient step scaled like |C'|^2 / d.
-        curv = np.maximum(curv, 0.25 * np.einsum("ij,ij->i", c1, c1) / dist)
-        t = t - grad / curv
-        t = np.mod(t, 1.0) if closed else np.clip(t, 0.0, 1.0)
+        grad = -uc1 - r1(ta)
+        curv = (np.einsum("ij,ij->i", c1, c1) - uc1**2) / dist - np.einsum("ij,ij->i", u, c2) - r2(ta)
+        # Where the second derivative is not positive Newton would climb: take a gradient step
+        # scaled like |C'|^2 / d instead.
+        curv = np.where(curv > 0, curv, np.einsum("ij,ij->i", c1, c1) / dist)
+        new = ta - grad / curv
+        new = np.mod(new, 1.0) if closed else np.clip(new, 0.0, 1.0)
+        moved = np.abs(new - ta) > FOOTPOINT_TOL
+        t[active] = new
+        active[np.flatnonzero(active)[~moved]] = False
+        if not active.any():
+            break
     return t, np.linalg.norm(points - spine(t), axis=1) - radius(t)
 
 
@@ -122,17 +148,17 @@ def _extended(f: BSpline, straight: bool):
     return g
 
 
-def _end(s: np.ndarray, scale: float) -> float:
-    """Where a tube ends, from the arc-length positions ``s`` of its footpoints (ascending).
+def _end(s: np.ndarray) -> float:
+    """Where a tube ends, from the ascending arc-length positions ``s`` of its footpoints.
 
-    The smallest footpoint overshoots an end by ``r tan(a)`` when the spine's end tangent is off by
-    ``a``; the mean of the k points within ``scale`` of the end does not: for a uniform density
-    ``lam`` ending sharply at ``e`` it is ``e + k / (2 lam)``.
+    For footpoints spread evenly with gap ``g`` from an end ``e``, the first lies near ``e + g``.  The
+    gap is measured on the next few points, as the density near an end may differ from the middle.
+    (A stray point beyond an end is already an outlier by its residual.)
     """
-    k = max(int(np.searchsorted(s, s[0] + scale)), 1)
-    inner = np.searchsorted(s, s[0] + 3 * scale) - k
-    lam = max(inner, 1) / (2 * scale)
-    return float(s[:k].mean() - k / (2 * lam))
+    m = END_GAPS
+    if len(s) <= m:
+        return float(s[0])
+    return float(s[0] - (s[m] - s[0]) / m)
 
 
 def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool, spine_segments: int,
@@ -186,9 +212,10 @@ def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool,
             # Levenberg-Marquardt: accept a step only if the truncated cost (outliers count as
             # ``cut``) falls with re-computed footpoints; otherwise damp harder.
             cost = np.minimum(res**2, cut**2).sum()
+            system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
+            lam = _gcv_smoothing(*system, floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
             for damping in LM_DAMPING:
-                new_spine, new_radius = _gauss_newton_step(points, t, inlier, spine, radius, segs, rsegs,
-                                                           closed, damping)
+                new_spine, new_radius = _step(system, spine, radius, segs, rsegs, closed, lam, damping)
                 new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed)
                 if np.minimum(new_res**2, cut**2).sum() < cost:
                     spine, radius, t, res = new_spine, new_radius, new_t, new_res
@@ -196,9 +223,8 @@ def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool,
         if not closed:
             length = curve_length(spine)
             ti = np.sort(t[inlier]) * length
-            scale = max(reach, 1e-12 * length)
-            lo = max(_end(ti, scale), 0.0) / length
-            hi = min(length - _end(length - ti[::-1], scale), length) / length
+            lo = max(_end(ti), 0.0) / length
+            hi = min(length - _end(length - ti[::-1]), length) / length
             spine, extra, _ = arclength_reparametrize(
                 spine, n_segments=spine_segments, closed=False, a=lo, b=hi,
                 extra=[] if rsegs is None else [(radius, radius_segments)])
@@ -209,8 +235,16 @@ def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool,
     return RefineResult(spine, radius, t, res, inlier, iterations)
 
 
-def _gauss_newton_step(points, t, inlier, spine, radius, segs, rsegs, closed, damping):
-    """One damped Gauss-Newton step on the coefficients, footpoints ``t`` held fixed."""
+def _linearise(points, t, inlier, spine, radius, segs, rsegs, closed):
+    """Normal equations of ``e_i = |P_i - C(t_i)| - r(t_i)`` in the coefficients, ``t_i`` fixed.
+
+    Returns
+    -------
+    JtWJ, g, Pen : dense arrays -- ``J^T W J``, ``J^T W e`` and the block second-difference penalty
+    x : ndarray -- current coefficients (spine x, y, z blocks, then radius)
+    rss : float -- ``sum w e^2``
+    nw : float -- total weight
+    """
     n = len(points)
     m = n_coefficients(segs, closed)
     diff = points - spine(t)
@@ -232,14 +266,45 @@ def _gauss_newton_step(points, t, inlier, spine, radius, segs, rsegs, closed, da
         coef.append(radius.c[:mr])
         pens.append(penalty(rsegs, closed))
     J = sparse.hstack(blocks).tocsr()
-    x = np.concatenate(coef)
     JtW = J.T.multiply(w).tocsr()
-    lam = SMOOTHING * w.sum() / m
-    Pen = sparse.block_diag(pens).tocsr()
-    JtWJ = JtW @ J
-    A = (JtWJ + lam * Pen + damping * sparse.diags(JtWJ.diagonal() + 1e-12)).tocsc()
-    x_new = x + spsolve(A, -(JtW @ e) - lam * (Pen @ x))
+    spine_pen = sparse.block_diag(pens[:3] + [0 * pens[3]]).toarray()
+    radius_pen = sparse.block_diag([0 * pens[0]] * 3 + [pens[3]]).toarray()
+    JtWJ = (JtW @ J).toarray()
+    # The radius function keeps a light fixed penalty (like the initial fits); only the spine's
+    # smoothing is chosen from the data.
+    fixed = SMOOTHING * w.sum() / m * radius_pen
+    return (JtWJ + fixed, JtW @ e + fixed @ np.concatenate(coef), spine_pen, np.concatenate(coef),
+            float((w * e**2).sum()), float(w.sum()))
 
+
+def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float) -> float:
+    """Penalty weight minimising generalised cross-validation, ``nw RSS / (nw - tr H)^2``.
+
+    The noise of a scan, not a fixed rule, then decides how much the spine is smoothed: straight,
+    well-sampled stretches are averaged over many points while sharp bends keep their shape.  The
+    search starts at ``floor``: the straight margins past the ends carry no data, and only the penalty
+    holds them.
+    """
+    best, best_lam = np.inf, floor
+    for lam in floor * GCV_GRID:
+        A = JtWJ + lam * Pen + 1e-12 * np.trace(JtWJ) / len(x) * np.eye(len(x))
+        step = np.linalg.solve(A, -(g + lam * (Pen @ x)))
+        fit_rss = rss + 2 * step @ g + step @ JtWJ @ step
+        dof = np.trace(np.linalg.solve(A, JtWJ))
+        if dof >= nw:
+            continue
+        gcv = nw * max(fit_rss, 0.0) / (nw - dof) ** 2
+        if gcv < best:
+            best, best_lam = gcv, lam
+    return float(best_lam)
+
+
+def _step(system, spine, radius, segs, rsegs, closed, lam, damping):
+    """One damped Gauss-Newton step with penalty weight ``lam``; returns the new spine and radius."""
+    JtWJ, g, Pen, x, _, _ = system
+    m = n_coefficients(segs, closed)
+    A = JtWJ + lam * Pen + damping * np.diag(JtWJ.diagonal() + 1e-12)
+    x_new = x + np.linalg.solve(A, -g - lam * (Pen @ x))
     ctrl = x_new[: 3 * m].reshape(3, m).T
     if closed:
         ctrl = np.vstack([ctrl, ctrl[:3]])

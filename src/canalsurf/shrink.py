@@ -68,7 +68,8 @@ class ShrinkResult:
 
 
 def _pairs_kdtree(points: np.ndarray, R: float) -> tuple[np.ndarray, np.ndarray]:
-    pairs = cKDTree(points).query_pairs(R, output_type="ndarray")
+    # T_i holds the points strictly closer than R; the tree's query includes distance == R.
+    pairs = cKDTree(points).query_pairs(np.nextafter(R, 0.0), output_type="ndarray")
     return pairs[:, 0], pairs[:, 1]
 
 
@@ -99,7 +100,7 @@ def _pairs_gauss(points: np.ndarray, R: float, cells: tuple[np.ndarray, np.ndarr
         theirs = np.flatnonzero(near)
         if len(theirs) == 0:
             continue
-        hits = cKDTree(points[theirs]).query_ball_point(points[mine], R, workers=-1)
+        hits = cKDTree(points[theirs]).query_ball_point(points[mine], np.nextafter(R, 0.0), workers=-1)
         counts = np.fromiter((len(h) for h in hits), int, len(hits))
         if counts.any():
             rows.append(np.repeat(mine, counts))
