@@ -1,0 +1,140 @@
+"""Tests of canalsurf.normals: regression-plane normals against the generators' exact normals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from canalsurf import synth
+from canalsurf.constants import NORMAL_NEIGHBOURS
+from canalsurf.normals import estimate_normals, orient_normals
+
+SEED = 7
+#: Share of estimated normals that must point the same way as the true ones (NOTES: MST orientation
+#: flipped none on these surfaces; centroid heuristics flip 1-3 %).
+MIN_SIGN_AGREEMENT = 0.99
+#: Mean angle between estimated and true normal lines, degrees.  2000 points with 16 neighbours span a
+#: patch comparable to the tube radius, so the plane tilts a few degrees; the Figure 15 pipe (r = 0.3 on
+#: a 14.5 long spine: about 8 points around) is the worst case, measured 10.3 degrees.
+MEAN_ANGLE_DEG = {"fig15-pipe": 12.0}
+MEAN_ANGLE_DEFAULT_DEG = 9.0
+
+
+def _outward_share(estimated, true):
+    return float(np.mean(np.einsum("ij,ij->i", estimated, true) > 0))
+
+
+@pytest.mark.parametrize("name", list(synth.SURFACES))
+def test_estimated_normals_match_true_normals(name, angle_deg):
+    tube = synth.make_tube(name, n=2000, rng=SEED)
+    normals = estimate_normals(tube.points)
+    assert normals.shape == (2000, 3)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
+    assert _outward_share(normals, tube.normals) >= MIN_SIGN_AGREEMENT
+    assert angle_deg(normals, tube.normals).mean() <= MEAN_ANGLE_DEG.get(name, MEAN_ANGLE_DEFAULT_DEG)
+
+
+def test_noise_free_cylinder_normals_are_accurate_and_outward(cylinder, angle_deg):
+    points, true, _, _ = cylinder(2000, radius=1.0, length=10.0)
+    normals = estimate_normals(points)
+    assert _outward_share(normals, true) == 1.0
+    # A symmetric 16-point patch of a cylinder gives the exact normal; random sampling tilts it a little.
+    assert angle_deg(normals, true).mean() <= 5.0
+    # Normals of a cylinder have no axial component beyond the tilt.
+    assert np.abs(normals[:, 2]).mean() <= np.sin(np.radians(5.0))
+
+
+def test_pca_matches_brute_force_reference(rng):
+    """Fast path (KD-tree + batched eigh) against sorted full distances + SVD, point by point."""
+    tube = synth.make_tube("fig9-pipe", n=600, rng=SEED)
+    points = tube.points
+    normals = estimate_normals(points)
+    for i in rng.choice(len(points), 40, replace=False):
+        nearest = np.argsort(np.linalg.norm(points - points[i], axis=1))[:NORMAL_NEIGHBOURS]
+        patch = points[nearest] - points[nearest].mean(axis=0)
+        reference = np.linalg.svd(patch)[2][-1]  # direction of least spread
+        assert abs(abs(reference @ normals[i]) - 1.0) <= 1e-9
+
+
+def test_sphere_normals_point_outward(rng, angle_deg):
+    v = rng.normal(size=(2000, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    normals = estimate_normals(2.0 * v + [1.0, -2.0, 3.0])
+    assert _outward_share(normals, v) == 1.0
+    assert angle_deg(normals, v).mean() <= 3.0
+
+
+@pytest.mark.parametrize("arc", [np.pi, np.pi / 2])
+def test_partial_cylinder_normals_point_outward(cylinder, arc):
+    """A one-sided scan: no opposite side, orientation must still come out outward (mean-curvature vote)."""
+    points, true, _, _ = cylinder(2000, radius=1.5, length=8.0, noise=0.03, arc=arc)
+    assert _outward_share(estimate_normals(points), true) >= MIN_SIGN_AGREEMENT
+
+
+def _flipped(normals, rng):
+    return normals * np.where(rng.random(len(normals)) < 0.5, -1.0, 1.0)[:, None]
+
+
+def _neighbours(points, k=9):
+    return cKDTree(points).query(points, k=k)[1]
+
+
+@pytest.mark.parametrize("shape", ["sphere", "half-cylinder", "fig16-canal", "two-tubes"])
+def test_orient_normals_recovers_outward_after_random_flips(shape, cylinder, rng):
+    if shape == "sphere":
+        true = rng.normal(size=(1500, 3))
+        true /= np.linalg.norm(true, axis=1, keepdims=True)
+        points = 3.0 * true
+    elif shape == "half-cylinder":
+        points, true, _, _ = cylinder(1500, radius=1.0, length=6.0, arc=np.pi)
+    elif shape == "fig16-canal":
+        tube = synth.make_tube("fig16-canal", n=2000, rng=SEED)
+        points, true = tube.points, tube.normals
+    else:  # two separate tubes: each connected part gets its own global sign
+        points, true, _, _ = cylinder(2000, radius=1.0, length=8.0)
+        points = points.copy()
+        points[1000:] += [20.0, 0.0, 0.0]
+    given = _flipped(true, rng)
+    before = given.copy()
+    oriented = orient_normals(points, given, _neighbours(points))
+    np.testing.assert_array_equal(given, before)  # input untouched
+    # Only signs change, and every normal ends up outward.
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", oriented, given)), 1.0, atol=1e-12)
+    assert _outward_share(oriented, true) == 1.0
+
+
+def test_orient_normals_of_inward_input_turns_all_outward(cylinder):
+    points, true, _, _ = cylinder(1500, radius=1.0, length=6.0)
+    oriented = orient_normals(points, -true, _neighbours(points))
+    np.testing.assert_allclose(oriented, true, atol=0)
+
+
+def test_same_input_same_output():
+    points = synth.make_tube("helix", n=1500, rng=SEED).points
+    np.testing.assert_array_equal(estimate_normals(points), estimate_normals(points.copy()))
+
+
+def test_normals_are_equivariant_under_rotation_translation_and_permutation(rng):
+    tube = synth.make_tube("fig14-canal", n=1500, rng=SEED)
+    base = estimate_normals(tube.points)
+    rot = Rotation.from_rotvec([0.4, -1.1, 0.7]).as_matrix()
+    moved = estimate_normals(tube.points @ rot.T + [100.0, -50.0, 7.0])
+    np.testing.assert_allclose(moved, base @ rot.T, atol=1e-8)
+    perm = rng.permutation(len(tube.points))
+    np.testing.assert_allclose(estimate_normals(tube.points[perm]), base[perm], atol=1e-8)
+
+
+def test_estimate_normals_does_not_change_its_input():
+    points = synth.make_tube("torus", n=800, rng=SEED).points
+    before = points.copy()
+    estimate_normals(points, k=12)
+    np.testing.assert_array_equal(points, before)
+
+
+def test_larger_k_still_outward_and_accurate(angle_deg):
+    tube = synth.make_tube("fig9-pipe", n=2000, rng=SEED)
+    normals = estimate_normals(tube.points, k=30)
+    assert _outward_share(normals, tube.normals) >= MIN_SIGN_AGREEMENT
+    assert angle_deg(normals, tube.normals).mean() <= MEAN_ANGLE_DEFAULT_DEG
