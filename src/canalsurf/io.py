@@ -39,8 +39,10 @@ from .errors import InputError
 __all__ = [
     "MESH_FORMATS",
     "POINT_FORMATS",
+    "POINT_WRITE_FORMATS",
     "atomic_write",
     "read_points",
+    "write_points",
     "write_json",
     "write_mesh",
     "write_spine_csv",
@@ -58,6 +60,9 @@ _LAS_NORMALS = (("normal_x", "normal_y", "normal_z"), ("normalx", "normaly", "no
 
 #: Application id under which :func:`write_spine_dxf` stores radii as DXF extended data.
 DXF_APPID = "CANALSURF"
+#: Point formats :func:`write_points` writes, by suffix.
+POINT_WRITE_FORMATS = {".ply": "ply", ".xyz": "text", ".txt": "text", ".asc": "text", ".csv": "csv",
+                 ".npy": "npy", ".npz": "npz"}
 
 #: Delimiters a text point file may use, in the order they are tried on the first data line.  ``;``
 #: comes before ``,`` because spreadsheets in decimal-comma locales write ``1,5;2,0;3,25``: a ``,`` in
@@ -616,6 +621,46 @@ _MESH_WRITERS: dict[str, Callable[[pathlib.Path, np.ndarray, np.ndarray], None]]
 
 #: File suffixes :func:`write_mesh` understands.
 MESH_FORMATS: tuple[str, ...] = tuple(_MESH_WRITERS)
+
+
+def write_points(path: PathLike, points: np.ndarray, normals: np.ndarray | None) -> None:
+    """Write a point cloud (with optional normals ``nx, ny, nz``) atomically; format by suffix.
+
+    PLY (binary, float64) through plyfile; ``.xyz .txt .asc`` (space separated) and ``.csv`` (with a
+    header) at full precision; ``.npy`` (an (N, 3) or (N, 6) array) and ``.npz`` (``points``, ``normals``).
+    """
+    path = pathlib.Path(path)
+    family = POINT_WRITE_FORMATS.get(path.suffix.lower())
+    if family is None:
+        raise InputError(f"{path}: cannot write points as {path.suffix or '(no suffix)'!r} — "
+                         f"use one of {', '.join(POINT_WRITE_FORMATS)}")
+    table = points if normals is None else np.column_stack([points, normals])
+    names = ["x", "y", "z"] + ([] if normals is None else ["nx", "ny", "nz"])
+    if family == "ply":
+        import plyfile
+
+        vertex = np.empty(len(table), dtype=[(n, "<f8") for n in names])
+        for i, n in enumerate(names):
+            vertex[n] = table[:, i]
+        data = plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")], text=False,
+                               byte_order="<", comments=["written by canalsurf"])
+        atomic_write(path, lambda tmp: data.write(str(tmp)))
+    elif family in ("text", "csv"):
+        header, sep = (",".join(names), ",") if family == "csv" else ("", " ")
+        atomic_write(path, lambda tmp: np.savetxt(tmp, table, fmt="%.17g", delimiter=sep, header=header,
+                                                  comments=""))
+    elif family == "npy":
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.save(fh, table)
+        atomic_write(path, write)
+    else:  # npz
+        arrays = {"points": points} | ({} if normals is None else {"normals": normals})
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **arrays)
+        atomic_write(path, write)
 
 
 def write_mesh(path: PathLike, vertices, faces) -> None:

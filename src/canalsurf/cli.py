@@ -1,0 +1,768 @@
+"""The ``canalsurf`` command: a thin shell over :func:`canalsurf.reconstruct` and the writers.
+
+``main(argv) -> int`` parses the arguments, runs one subcommand handler and returns the exit code; it is
+the only place in canalsurf that prints, configures logging and shows progress bars.
+
+Subcommands
+    ``demo``         reconstruct the built-in Figure 9 pipe and compare with the truth (no input needed);
+    ``reconstruct``  point files -> model.json, surface mesh, spine.csv, spine.dxf;
+    ``synth``        write a sampled test surface as a point file;
+    ``paper``        reproduce the paper's experiments (:mod:`canalsurf.experiments`).
+
+Exit codes
+    0 success; 1 a reconstruction failed (:class:`ReconstructionError`); 2 bad input, bad output path or
+    bad usage (:class:`InputError`, ``OSError`` on output, argparse errors); 130 interrupted.
+    With several inputs the code is the highest of the failures'.  Every expected failure prints one
+    line ``canalsurf: error: <what> — <what to do>`` to stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import json
+import logging
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import CanalsurfError, InputError, ReconstructionError
+from .io import POINT_WRITE_FORMATS, write_points
+
+__all__ = ["main", "build_parser"]
+
+log = logging.getLogger(__name__)
+
+PROG = "canalsurf"
+#: Exit codes (module docstring).
+EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: The built-in example of ``canalsurf demo``: the paper's Figure 9 pipe, as the paper sampled it.
+DEMO_SURFACE, DEMO_POINTS, DEMO_SEED, DEMO_OUTDIR = "fig9-pipe", 2000, 0, "canalsurf-demo"
+#: Mesh formats offered by ``--mesh-format`` (suffixes of :data:`canalsurf.io.MESH_FORMATS`).
+MESH_CHOICES = ("ply", "obj", "stl", "glb", "off")
+#: Point formats ``canalsurf synth`` writes: suffix -> family.
+#: Samples used for the spine length in summaries (far finer than any spine's knot spacing).
+
+
+class _UsageError(Exception):
+    """An argparse usage error, raised instead of argparse's print-usage-and-exit."""
+
+    def __init__(self, message: str, prog: str):
+        super().__init__(message)
+        self.prog = prog
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors become one ``canalsurf: error:`` line (see :func:`main`)."""
+
+    def error(self, message):  # noqa: D102 -- argparse hook
+        raise _UsageError(" ".join(str(message).split()), self.prog)
+
+
+# --------------------------------------------------------------------------------------------------
+# argument parsing
+
+
+def _number(kind: type, *, low: float | None = None, high: float | None = None, strict: bool = False,
+            what: str = "a number") -> Callable[[str], float]:
+    """argparse ``type=`` for a finite number in a range (usage error before any work is done)."""
+
+    def convert(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if not math.isfinite(value) or (low is not None and (value <= low if strict else value < low)) \
+                or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+
+    return convert
+
+
+_POSITIVE = _number(float, low=0.0, strict=True, what="a positive number")
+
+
+def _add_global_options(parser: argparse.ArgumentParser, *, in_subcommand: bool) -> None:
+    """-v / -q / --json, accepted before and after the subcommand.
+
+    In a subcommand the defaults are suppressed, so an option given before the subcommand is not
+    overwritten by the subcommand's default.
+    """
+    group = parser.add_argument_group("general options")
+    default = {"default": argparse.SUPPRESS} if in_subcommand else {}
+    group.add_argument("-v", "--verbose", action="count", **({"default": 0} | default),
+                       help="log what was decided (parameters chosen, iterations, stop rule, timings) "
+                            "to stderr")
+    group.add_argument("-q", "--quiet", action="store_true", **({"default": False} | default),
+                       help="no progress bar, no summary, no warnings; errors are still reported")
+    group.add_argument("--json", action="store_true", **({"default": False} | default),
+                       help="print a machine-readable summary to stdout instead of the human one: "
+                            "one JSON object per line (per input)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``canalsurf`` command."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    parser = _Parser(
+        prog=PROG, formatter_class=fmt,
+        description="Reconstruct pipe and canal surfaces (a B-spline spine and a radius) from unorganized "
+                    "3D point clouds, by shrinking the points onto the spine and thinning them with "
+                    "moving least squares.",
+        epilog="examples:\n"
+               "  canalsurf demo                                # try it: no input needed\n"
+               "  canalsurf reconstruct scan.ply -o out/         # model.json, surface.ply, spine.csv\n"
+               "  canalsurf reconstruct *.las -o results/ -v     # one folder per input, with a log\n"
+               "  canalsurf synth fig14-canal -o canal.ply       # a test cloud\n"
+               "  canalsurf synth --list\n\n"
+               "exit codes: 0 success, 1 reconstruction failed (not a tube), 2 bad input, output path or "
+               "usage.\nRun 'canalsurf COMMAND --help' for the options of a command.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    _add_global_options(parser, in_subcommand=False)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, title="commands")
+
+    # demo ------------------------------------------------------------------------------------------
+    p = sub.add_parser(
+        "demo", formatter_class=fmt, help="reconstruct a built-in example pipe and compare with the truth",
+        description=f"Sample the paper's Figure 9 pipe ({DEMO_POINTS} points, noise ±0.1, seed {DEMO_SEED}; "
+                    "true radius 1), write it as DIR/input.ply, reconstruct it with automatic "
+                    "parameters, write the results into DIR as 'canalsurf reconstruct' does and print "
+                    "how close the result is to the truth.",
+        epilog="examples:\n"
+               "  canalsurf demo\n"
+               "  canalsurf demo -o /tmp/demo -v      # also log the parameters chosen\n"
+               "  canalsurf reconstruct canalsurf-demo/input.ply -o again/   # the same, from the file")
+    p.add_argument("-o", "--output", metavar="DIR", type=Path, default=Path(DEMO_OUTDIR),
+                   help=f"folder for input.ply and the results (default: {DEMO_OUTDIR})")
+    _add_global_options(p, in_subcommand=True)
+    p.set_defaults(handler=_cmd_demo)
+
+    # reconstruct -----------------------------------------------------------------------------------
+    from . import constants as C
+    from .io import POINT_FORMATS
+
+    p = sub.add_parser(
+        "reconstruct", formatter_class=fmt, help="reconstruct pipe/canal models from point files",
+        description="Reconstruct a pipe or canal surface from each INPUT and write into OUTDIR:\n"
+                    "  model.json      spine B-spline, radius, samples, parameters used, diagnostics\n"
+                    "  surface.<fmt>   triangle mesh of the surface (watertight: ends capped)\n"
+                    "  spine.csv       t,x,y,z,radius at points evenly spaced along the spine\n"
+                    "  spine.dxf       the spine as a CAD SPLINE with radii (needs ezdxf; skipped "
+                    "without)\n"
+                    "With one INPUT the files go into OUTDIR itself, with several into "
+                    "OUTDIR/<input name>/.\nAn input that fails is reported and the others go on; "
+                    "nothing is written for it.\n\n"
+                    f"Point formats: {' '.join(POINT_FORMATS)} (.las/.laz, .pcd, .e57 need extras).\n"
+                    "Parameters left out are chosen from the data (see -v) and recorded in model.json, "
+                    "so any run can be repeated exactly.",
+        epilog="examples:\n"
+               "  canalsurf reconstruct scan.ply -o out/\n"
+               "  canalsurf reconstruct a.xyz b.xyz c.laz -o results/ --mesh-format stl\n"
+               "  canalsurf reconstruct pipe.ply -o out/ --kind pipe -R 0.2 --delta 0.05 -v\n"
+               "  canalsurf reconstruct scan.e57 -o out/ --json > summary.jsonl\n\n"
+               "exit codes: 0 all inputs succeeded; otherwise the highest of the failures' codes "
+               "(2 bad input, 1 reconstruction failed).")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", type=Path, help="point cloud file(s)")
+    p.add_argument("-o", "--output", metavar="OUTDIR", type=Path, required=True,
+                   help="output folder (created if needed)")
+    g = p.add_argument_group("method (the paper's parameters; default: chosen from the data)")
+    g.add_argument("--kind", choices=("auto", "pipe", "canal"), default="auto",
+                   help="pipe: constant radius; canal: radius varies along the spine; auto (default): "
+                        "a canal only if a varying radius fits clearly better")
+    g.add_argument("-R", "--R", dest="R", type=_POSITIVE, metavar="R",
+                   help="neighbour radius of the shrinking, in the input's units (default: "
+                        f"{C.R_PER_RADIUS:g} x the first radius estimate, at least "
+                        f"{C.R_PER_COLLAPSED_SPACING:g} x the spacing of the collapsed points); "
+                        "larger if shrinking does not stop")
+    g.add_argument("--delta", type=_POSITIVE,
+                   help=f"shrink step, input units (default: {C.DELTA_PER_RADIUS:.3g} x the first radius "
+                        "estimate); smaller is more precise and slower")
+    g.add_argument("--mu", type=_number(float, low=0, high=1, what="a number in [0, 1]"),
+                   help="break portion: stop when this share of the points has met an opposite "
+                        f"normal (default {C.MU:g} with --kind pipe or --stop paper, else "
+                        f"{C.MU_CANAL_AUTO:g})")
+    g.add_argument("--tau", type=_number(float, low=-1, high=1, what="a number in [-1, 1]"),
+                   help=f"canal: cosine tolerance of the normal test (default {C.TAU:.4g} = cos 80°)")
+    g.add_argument("-H", "--H", dest="H", type=_POSITIVE, metavar="H",
+                   help="weighting radius of the MLS thinning, input units (default: "
+                        f"{C.H_PER_RADIUS:g} x the first radius estimate)")
+    g.add_argument("-k", type=_number(int, low=3, what="an integer >= 3"),
+                   help=f"neighbours for estimating normals (default {C.NORMAL_NEIGHBOURS})")
+    g.add_argument("--stop", choices=("auto", "paper"), default="auto",
+                   help="paper: only the printed mu rule; auto (default): also the peak/patience rules")
+    g.add_argument("--neighbours", choices=("kdtree", "gauss"), default="kdtree",
+                   help="neighbour search of the shrinking: KD-tree (default) or the paper's Gauss map")
+    g.add_argument("--no-refine", dest="refine", action="store_false",
+                   help="return the paper's own result instead of the final fit to all points")
+    g.add_argument("--normals", choices=("auto", "estimate"), default="auto",
+                   help="auto (default): use the file's normals if it has them; estimate: always "
+                        "estimate them")
+    g = p.add_argument_group("files")
+    g.add_argument("--mesh-format", choices=MESH_CHOICES, default="ply",
+                   help="format of surface.<fmt> (default ply; obj stl glb off need trimesh)")
+    g.add_argument("--no-caps", dest="caps", action="store_false",
+                   help="leave the ends of an open tube open (default: capped, watertight)")
+    _add_global_options(p, in_subcommand=True)
+    p.set_defaults(handler=_cmd_reconstruct)
+
+    # synth -----------------------------------------------------------------------------------------
+    from .synth import SURFACES
+
+    p = sub.add_parser(
+        "synth", formatter_class=fmt, help="write a sampled test surface (the paper's and others)",
+        description="Sample one of the built-in surfaces with a uniform random offset along the normal "
+                    "(the paper's epsilon) and write the points.  The format follows FILE's suffix: "
+                    f"{' '.join(POINT_WRITE_FORMATS)}.\n\nSurfaces: {', '.join(SURFACES)} "
+                    "(see --list).",
+        epilog="examples:\n"
+               "  canalsurf synth --list\n"
+               "  canalsurf synth fig9-pipe -o pipe.ply\n"
+               "  canalsurf synth torus -o torus.xyz --n 5000 --noise 0 --seed 3 --normals")
+    p.add_argument("name", nargs="?", metavar="NAME", choices=tuple(SURFACES), help="surface to sample")
+    p.add_argument("-o", "--output", metavar="FILE", type=Path, help="point file to write")
+    p.add_argument("--list", action="store_true", help="list the surfaces and exit")
+    p.add_argument("--n", type=_number(int, low=1, what="a positive integer"), default=DEMO_POINTS,
+                   help=f"number of points (default {DEMO_POINTS}, as in the paper)")
+    p.add_argument("--noise", type=_number(float, low=0, what="a number >= 0"),
+                   help="half-width of the offset along the normal (default: the paper's value for NAME)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--normals", action="store_true", help="also write the true normals (nx, ny, nz)")
+    _add_global_options(p, in_subcommand=True)
+    p.set_defaults(handler=_cmd_synth)
+
+    # paper -----------------------------------------------------------------------------------------
+    p = sub.add_parser(
+        "paper", formatter_class=fmt, help="reproduce the paper's experiments",
+        description="Run the paper's Section 4 experiments over several seeds and write the tables, "
+                    "figures and the reproduction document into OUTDIR.",
+        epilog="examples:\n"
+               "  canalsurf paper -o docs/paper\n"
+               "  canalsurf paper -o /tmp/paper --seeds 3 -v")
+    p.add_argument("-o", "--output", metavar="OUTDIR", type=Path, required=True, help="output folder")
+    p.add_argument("--seeds", type=_number(int, low=1, what="a positive integer"), default=10,
+                   help="random seeds per experiment (default 10)")
+    _add_global_options(p, in_subcommand=True)
+    p.set_defaults(handler=_cmd_paper)
+    return parser
+
+
+# --------------------------------------------------------------------------------------------------
+# console: logging, progress, messages
+
+
+class _Console:
+    """Where a run's messages go: summaries and JSON to stdout, errors, logs and progress to stderr."""
+
+    def __init__(self, args):
+        self.quiet = bool(args.quiet)
+        self.json = bool(args.json)
+        # Looked up now, not at import: tests (and embedding programs) swap sys.stdout/sys.stderr.
+        self.out, self.err = sys.stdout, sys.stderr
+        self.progress_enabled = not self.quiet and _isatty(self.err)
+
+    def say(self, text: str = "") -> None:
+        """A human summary line (not with --quiet or --json)."""
+        if not (self.quiet or self.json):
+            print(text, file=self.out)
+
+    def record(self, obj: dict) -> None:
+        """One JSON summary line (only with --json)."""
+        if self.json:
+            print(json.dumps(obj, default=str, ensure_ascii=False), file=self.out, flush=True)
+
+    def error(self, message: str) -> None:
+        """The one stderr line of an expected failure."""
+        from tqdm import tqdm
+
+        tqdm.write(f"{PROG}: error: {_one_line(message)}", file=self.err)
+
+
+def _isatty(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+class _TqdmHandler(logging.StreamHandler):
+    """Log records to stderr without breaking a progress bar that is being drawn."""
+
+    def emit(self, record):
+        from tqdm import tqdm
+
+        try:
+            tqdm.write(self.format(record), file=self.stream)
+        except Exception:  # noqa: BLE001 -- logging's own convention
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def _logging(verbose: int, quiet: bool):
+    """Send canalsurf's log records to stderr for the duration of one ``main`` call.
+
+    Only the ``canalsurf`` logger is touched (never the root logger), and it is restored afterwards, so
+    calling ``main`` repeatedly in one process (tests, notebooks) adds no duplicate handlers.
+    """
+    logger = logging.getLogger(PROG)
+    level = logging.DEBUG if verbose > 1 else logging.INFO if verbose else \
+        logging.ERROR if quiet else logging.WARNING
+    handler = _TqdmHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+    old_level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(level)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+
+
+@contextlib.contextmanager
+def _warnings_to_log():
+    """Show library warnings as one log line each (``canalsurf.cli: warning: ...``).
+
+    The active warning filters still apply (so ``-W error`` or pytest's strict mode still raise).
+    """
+    caught = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            yield
+    finally:  # also when the run fails: the warnings may explain why
+        for w in caught:
+            log.warning("warning: %s", _one_line(str(w.message)))
+
+
+class _StageBar:
+    """A tqdm bar over the pipeline's stages; ``bar(stage)`` is reconstruct's ``progress`` callback."""
+
+    def __init__(self, label: str, console: _Console):
+        from tqdm import tqdm
+
+        from .pipeline import STAGES
+
+        self.stages = STAGES
+        self.bar = tqdm(total=len(STAGES), desc=label, unit="stage", file=console.err, leave=False,
+                        disable=not console.progress_enabled, dynamic_ncols=True)
+
+    def __call__(self, stage: str) -> None:
+        done = self.stages.index(stage) if stage in self.stages else self.bar.n
+        self.bar.update(done - self.bar.n)
+        self.bar.set_postfix_str(stage)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.bar.close()
+
+
+# --------------------------------------------------------------------------------------------------
+# writing a set of files all-or-nothing
+
+
+def _make_dirs(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; return those created (outermost first).
+
+    Raises
+    ------
+    InputError
+        A path component exists but is not a folder.
+    OSError
+        The folder cannot be created (permissions, ...); whatever was created is removed again.
+    """
+    missing = []
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        missing.append(probe)
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{folder}: cannot create this folder, {probe} is a file — "
+                         "choose another output folder")
+    created = []
+    try:
+        for path in reversed(missing):
+            path.mkdir()
+            created.append(path)
+    except BaseException:
+        _remove_dirs(created)
+        raise
+    return created
+
+
+def _remove_dirs(created: list[Path]) -> None:
+    """Remove folders made by :func:`_make_dirs`, innermost first, if they are empty."""
+    for path in reversed(created):
+        with contextlib.suppress(OSError):
+            path.rmdir()
+
+
+def _check_output_folder(folder: Path) -> None:
+    """Fail before any work if ``folder`` can never be created (a file stands in the way)."""
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{folder}: cannot create this folder, {probe} is a file — "
+                         "choose another output folder")
+
+
+def _write_files(folder: Path, files: dict[str, Callable[[Path], None]]) -> list[Path]:
+    """Write ``files`` (name -> ``write(path)``) into ``folder``, all or nothing.
+
+    The folder (and missing parents) is created only now; every file is first written into a hidden
+    staging folder inside it and moved into place once all have succeeded.  On failure the staging
+    folder, and any folder created here, are removed, and earlier files of the same names are left
+    untouched.
+    """
+    for name in files:
+        if (folder / name).is_dir():
+            raise InputError(f"{folder / name}: is a folder — remove it or choose another output folder")
+    created = _make_dirs(folder)
+    staging = None
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=".canalsurf-", dir=folder))
+        for name, write in files.items():
+            write(staging / name)
+        for name in files:
+            os.replace(staging / name, folder / name)
+        staging.rmdir()
+    except BaseException:
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
+        _remove_dirs(created)
+        raise
+    return [folder / name for name in files]
+
+
+def _output_error(exc: OSError, folder: Path) -> InputError:
+    """An OSError while writing, as the one-line error the user sees."""
+    where = exc.filename or folder
+    reason = exc.strerror or type(exc).__name__
+    return InputError(f"{where}: cannot write ({reason}) — choose another output folder or free space")
+
+
+# --------------------------------------------------------------------------------------------------
+# reconstruct
+
+
+_DXF_AVAILABLE: bool | None = None
+
+
+def _dxf_available() -> bool:
+    """ezdxf can be imported (checked once per process)."""
+    global _DXF_AVAILABLE
+    if _DXF_AVAILABLE is None:
+        try:
+            importlib.import_module("ezdxf")
+            _DXF_AVAILABLE = True
+        except ImportError:
+            _DXF_AVAILABLE = False
+    return _DXF_AVAILABLE
+
+
+def _output_files(model, *, mesh_format: str = "ply", caps: bool = True) -> dict[str, Callable]:
+    """Everything a reconstruction writes, computed now; name -> ``write(path)`` callables.
+
+    Raises
+    ------
+    ReconstructionError
+        The model has no valid surface mesh (e.g. the radius changes faster than the spine).
+    """
+    from .io import write_json, write_mesh, write_spine_csv, write_spine_dxf
+    from .surface import surface_mesh
+
+    data = model.to_dict()
+    try:
+        vertices, faces = surface_mesh(model.spine, model.radius, closed=model.closed, caps=caps)
+    except InputError as exc:
+        raise ReconstructionError(f"the reconstructed surface cannot be meshed: {exc} — "
+                                  "try --kind pipe or a larger -H") from None
+    samples = data["samples"]
+    t, points, radius = (np.asarray(samples[key], dtype=float) for key in ("t", "points", "radius"))
+    files = {
+        "model.json": lambda path: write_json(path, data),
+        f"surface.{mesh_format}": lambda path: write_mesh(path, vertices, faces),
+        "spine.csv": lambda path: write_spine_csv(path, t, points, radius),
+    }
+    if _dxf_available():
+        spine = model.spine
+        files["spine.dxf"] = lambda path: write_spine_dxf(path, spine.t, spine.c, spine.k, points, radius)
+    return files
+
+
+def _spine_length(model) -> float:
+    from .spine import curve_length
+
+    return curve_length(model.spine)
+
+
+def _reconstruct_cloud(points, normals, label: str, options: dict, console: _Console):
+    """Run :func:`canalsurf.reconstruct` with a progress bar, warnings and a log of the outcome."""
+    from .pipeline import reconstruct
+
+    start = time.perf_counter()
+    with _StageBar(label, console) as bar, _warnings_to_log():
+        model = reconstruct(points, normals=normals, progress=bar, **options)
+    d = model.diagnostics
+    log.info("%s: %s, mean radius %.6g, %s spine; shrinking stopped by %s after %s moves; "
+             "RMS residual %.4g", label, model.kind, model.mean_radius,
+             "closed" if model.closed else "open", d.get("stop_rule"), d.get("iterations"),
+             d.get("rms_residual", float("nan")))
+    seconds = d.get("seconds", {})
+    log.info("%s: timings %s; total %.2f s", label,
+             ", ".join(f"{k} {v:.2f} s" for k, v in seconds.items()), time.perf_counter() - start)
+    return model
+
+
+def _summary(label, folder, model, files) -> dict:
+    data = model.to_dict()
+    return {"input": label, "outdir": str(folder), "kind": model.kind, "closed": bool(model.closed),
+            "radius": model.mean_radius, "parameters": data["parameters"],
+            "diagnostics": data["diagnostics"], "files": [str(f) for f in files]}
+
+
+def _folder_names(inputs: list[Path]) -> list[str]:
+    """One output folder name per input: its stem, made unique (``scan``, ``scan-2``, ...)."""
+    used, names = set(), []
+    for path in inputs:
+        stem = path.stem or path.name or "input"
+        name, i = stem, 1
+        while name.casefold() in used:  # case-insensitive file systems
+            i += 1
+            name = f"{stem}-{i}"
+        used.add(name.casefold())
+        names.append(name)
+    return names
+
+
+def _with_path(path: Path, exc: Exception) -> str:
+    """The error message, naming the input file unless it already does."""
+    text = _one_line(exc)
+    return text if text.startswith(str(path)) else f"{path}: {text}"
+
+
+def _exit_code(exc: BaseException) -> int:
+    return EXIT_FAILED if isinstance(exc, ReconstructionError) else EXIT_INPUT
+
+
+def _cmd_reconstruct(args, console: _Console) -> int:
+    from .io import read_points
+
+    if args.mesh_format != "ply":
+        try:
+            importlib.import_module("trimesh")
+        except ImportError:
+            raise InputError(f"writing .{args.mesh_format} meshes needs the 'mesh' extra — "
+                             "pip install 'canalsurf[mesh]', or use --mesh-format ply") from None
+    _check_output_folder(args.output)
+    if not _dxf_available():
+        log.info("ezdxf is not installed: spine.dxf is skipped (pip install 'canalsurf[dxf]')")
+    options = {"kind": args.kind, "R": args.R, "delta": args.delta, "mu": args.mu, "tau": args.tau,
+               "H": args.H, "k": args.k, "stop": args.stop, "neighbours": args.neighbours,
+               "refine": args.refine}
+    several = len(args.inputs) > 1
+    names = _folder_names(args.inputs)
+    worst = EXIT_OK
+    for path, name in zip(args.inputs, names):
+        folder = args.output / name if several else args.output
+        try:
+            points, normals = read_points(path)
+            if args.normals == "estimate":
+                normals = None
+            log.info("%s: %d points, normals %s", path, len(points),
+                     "from the file" if normals is not None else "estimated")
+            model = _reconstruct_cloud(points, normals, str(path), options, console)
+            files = _output_files(model, mesh_format=args.mesh_format, caps=args.caps)
+            try:
+                written = _write_files(folder, files)
+            except OSError as exc:
+                raise _output_error(exc, folder) from None
+        except CanalsurfError as exc:
+            message, code = _with_path(path, exc), _exit_code(exc)
+            console.error(message)
+            console.record({"input": str(path), "outdir": str(folder), "error": message, "exit_code": code})
+            worst = max(worst, code)
+            continue
+        console.record(_summary(str(path), folder, model, written))
+        console.say(f"{path}: {model.kind}, radius {model.mean_radius:.6g}, "
+                    f"{'closed' if model.closed else 'open'} spine of length {_spine_length(model):.6g}"
+                    f" -> {folder}{os.sep} ({', '.join(f.name for f in written)})")
+    return worst
+
+
+# --------------------------------------------------------------------------------------------------
+# demo
+
+
+def _cmd_demo(args, console: _Console) -> int:
+    from .metrics import compare
+    from .synth import SURFACES, make_tube
+
+    folder = args.output
+    _check_output_folder(folder)
+    tube = make_tube(DEMO_SURFACE, n=DEMO_POINTS, rng=DEMO_SEED)
+    log.info("demo: %s, %d points, noise %g, seed %d", DEMO_SURFACE, DEMO_POINTS, tube.noise, DEMO_SEED)
+    model = _reconstruct_cloud(tube.points, None, "demo", {}, console)
+    files = {"input.ply": lambda path: write_points(path, tube.points, None)}
+    files.update(_output_files(model))
+    try:
+        written = _write_files(folder, files)
+    except OSError as exc:
+        raise _output_error(exc, folder) from None
+
+    m = compare(model, tube)
+    true_r = m["mean_radius"]
+    summary = _summary(str(folder / "input.ply"), folder, model, written)
+    summary.update(surface=DEMO_SURFACE, true_radius=true_r, spine_length=_spine_length(model),
+                   metrics=m)
+    console.record(summary)
+    pct = 100.0 / true_r
+    console.say(f"canalsurf demo: {SURFACES[DEMO_SURFACE][-1]}")
+    console.say(f"  sampled {DEMO_POINTS} points, noise ±{tube.noise:g} along the normal, seed {DEMO_SEED}")
+    console.say(f"  kind           {model.kind} ({'closed' if model.closed else 'open'} spine)")
+    console.say(f"  radius found   {model.mean_radius:.4f}  (true {true_r:.4f}, "
+                f"error {abs(model.mean_radius - true_r) * pct:.2f} %)")
+    console.say(f"  spine length   {summary['spine_length']:.4g}")
+    console.say(f"  spine error    mean {m['spine_mean'] * pct:.2f} %, max {m['spine_max'] * pct:.2f} % "
+                "of the radius (closest-point distance to the true spine)")
+    console.say(f"  radius error   mean {m['radius']['mean'] * pct:.2f} %, max {m['radius']['max'] * pct:.2f} %")
+    console.say(f"  files written  {', '.join(str(f) for f in written)}")
+    console.say(f"  next: canalsurf reconstruct {folder / 'input.ply'} -o OUTDIR -v")
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------------------------------
+# synth
+
+
+def _cmd_synth(args, console: _Console) -> int:
+    from .synth import SURFACES, make_tube
+
+    if args.list:
+        if console.json:
+            console.record({name: spec[-1] for name, spec in SURFACES.items()})
+        else:
+            width = max(map(len, SURFACES))
+            for name, spec in SURFACES.items():
+                print(f"{name:<{width}}  {spec[-1]}", file=console.out)
+        return EXIT_OK
+    if args.name is None or args.output is None:
+        raise _UsageError("synth needs NAME and -o FILE (or --list)", f"{PROG} synth")
+    path = args.output
+    if path.suffix.lower() not in POINT_WRITE_FORMATS:
+        raise InputError(f"{path}: cannot write points as {path.suffix or '(no suffix)'!r} — "
+                         f"use one of {', '.join(POINT_WRITE_FORMATS)}")
+    tube = make_tube(args.name, n=args.n, noise=args.noise, rng=args.seed)
+    created = _make_dirs(path.parent)
+    try:
+        write_points(path, tube.points, tube.normals if args.normals else None)
+    except BaseException:
+        _remove_dirs(created)
+        raise
+    console.record({"name": args.name, "output": str(path), "n": int(args.n), "noise": tube.noise,
+                    "seed": args.seed, "normals": bool(args.normals), "closed": tube.closed})
+    console.say(f"{path}: {args.n} points of {args.name} (noise ±{tube.noise:g}, seed {args.seed}"
+                f"{', with true normals' if args.normals else ''})")
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------------------------------
+# paper
+
+
+def _cmd_paper(args, console: _Console) -> int:
+    try:
+        from .experiments import run_paper
+    except ImportError as exc:
+        raise InputError(f"the paper experiments cannot be loaded ({_one_line(exc)}) — "
+                         "install canalsurf with its extras: pip install 'canalsurf[all]'") from None
+    from tqdm import tqdm
+
+    _check_output_folder(args.output)
+    bar = tqdm(desc="paper", unit="step", file=console.err, leave=False,
+               disable=not console.progress_enabled, dynamic_ncols=True)
+
+    def progress(*info, **_):
+        """Accepts ``progress(message)``, ``progress(done, total)`` or ``progress(done, total, message)``."""
+        counts = [x for x in info if isinstance(x, int) and not isinstance(x, bool)]
+        text = " ".join(str(x) for x in info if not isinstance(x, (int, float)))
+        if len(counts) >= 2:
+            bar.total = counts[1]
+            bar.update(counts[0] - bar.n)
+        else:
+            bar.update(1)
+        if text:
+            bar.set_postfix_str(text[:60])
+
+    start = time.perf_counter()
+    try:
+        with bar, _warnings_to_log():
+            result = run_paper(args.output, seeds=args.seeds, progress=progress)
+    except OSError as exc:
+        raise _output_error(exc, args.output) from None
+    log.info("paper: %d seeds in %.1f s", args.seeds, time.perf_counter() - start)
+    record = {"outdir": str(args.output), "seeds": int(args.seeds)}
+    if result is not None:
+        record["result"] = result
+    console.record(record)
+    console.say(f"paper reproduction ({args.seeds} seeds) written to {args.output}{os.sep}")
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------------------------------
+# entry point
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``canalsurf`` command with ``argv`` (default ``sys.argv[1:]``); return the exit code.
+
+    Examples
+    --------
+    >>> main(["--version"])  # doctest: +SKIP
+    canalsurf 0.1.0
+    0
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:
+        print(f"{PROG}: error: {exc} — see '{exc.prog} --help'", file=sys.stderr)
+        return EXIT_INPUT
+    except SystemExit as exc:  # --help and --version
+        return exc.code if isinstance(exc.code, int) else EXIT_OK
+
+    console = _Console(args)
+    with _logging(args.verbose, args.quiet):
+        try:
+            return args.handler(args, console)
+        except _UsageError as exc:
+            console.error(f"{exc} — see '{exc.prog} --help'")
+            return EXIT_INPUT
+        except CanalsurfError as exc:
+            console.error(str(exc))
+            return _exit_code(exc)
+        except OSError as exc:
+            console.error(str(_output_error(exc, Path(getattr(args, "output", ".") or "."))))
+            return EXIT_INPUT
+        except KeyboardInterrupt:
+            console.error("interrupted — nothing more was written")
+            return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())
