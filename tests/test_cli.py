@@ -406,3 +406,13 @@ def test_paper_without_experiments_module(monkeypatch, tmp_path, capsys):
     monkeypatch.setitem(sys.modules, "canalsurf.experiments", None)  # import fails
     assert cli.main(["paper", "-o", str(tmp_path)]) == 2
     assert "paper experiments cannot be loaded" in _error_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".xyz", ".npy"])
+def test_fifty_megabytes_of_random_bytes(suffix, tmp_path, capsys):
+    path = tmp_path / f"noise{suffix}"
+    path.write_bytes(np.random.default_rng(7).bytes(50 << 20))
+    out = tmp_path / "out"
+    assert cli.main(["reconstruct", str(path), "-o", str(out)]) == 2
+    assert _error_line(capsys.readouterr().err).startswith(f"canalsurf: error: {path}: ")
+    assert not out.exists()

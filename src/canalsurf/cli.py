@@ -141,9 +141,13 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n"
                "  canalsurf demo\n"
                "  canalsurf demo -o /tmp/demo -v      # also log the parameters chosen\n"
+               "  canalsurf demo --report             # also write canalsurf-demo/report.html\n"
                "  canalsurf reconstruct canalsurf-demo/input.ply -o again/   # the same, from the file")
     p.add_argument("-o", "--output", metavar="DIR", type=Path, default=Path(DEMO_OUTDIR),
                    help=f"folder for input.ply and the results (default: {DEMO_OUTDIR})")
+    p.add_argument("--report", action="store_true",
+                   help="also write DIR/report.html, a self-contained page with a 3-D view, the radius "
+                        "and the stages (needs the 'report' extra)")
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_demo)
 
@@ -159,6 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "  spine.csv       t,x,y,z,radius at points evenly spaced along the spine\n"
                     "  spine.dxf       the spine as a CAD SPLINE with radii (needs ezdxf; skipped "
                     "without)\n"
+                    "  report.html     with --report: one self-contained page (works offline) with a 3-D "
+                    "view of\n                  points, spine and surface, the radius, the stages and "
+                    "the parameters\n"
                     "With one INPUT the files go into OUTDIR itself, with several into "
                     "OUTDIR/<input name>/.\nAn input that fails is reported and the others go on; "
                     "nothing is written for it.\n\n"
@@ -169,7 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf reconstruct scan.ply -o out/\n"
                "  canalsurf reconstruct a.xyz b.xyz c.laz -o results/ --mesh-format stl\n"
                "  canalsurf reconstruct pipe.ply -o out/ --kind pipe -R 0.2 --delta 0.05 -v\n"
-               "  canalsurf reconstruct scan.e57 -o out/ --json > summary.jsonl\n\n"
+               "  canalsurf reconstruct scan.e57 -o out/ --json > summary.jsonl\n"
+               "  canalsurf reconstruct scan.ply -o out/ --report  # and out/report.html\n\n"
                "exit codes: 0 all inputs succeeded; otherwise the highest of the failures' codes "
                "(2 bad input, 1 reconstruction failed).")
     p.add_argument("inputs", nargs="+", metavar="INPUT", type=Path, help="point cloud file(s)")
@@ -212,6 +220,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="format of surface.<fmt> (default ply; obj stl glb off need trimesh)")
     g.add_argument("--no-caps", dest="caps", action="store_false",
                    help="leave the ends of an open tube open (default: capped, watertight)")
+    g.add_argument("--report", action="store_true",
+                   help="also write report.html: a self-contained page (no network needed) with a 3-D "
+                        "view of the points coloured by their distance from the surface, the radius "
+                        "along the spine, the stages and the parameters (needs the 'report' extra: "
+                        "pip install 'canalsurf[report]')")
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_reconstruct)
 
@@ -236,6 +249,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=_number(float, low=0, what="a number >= 0"),
                    help="half-width of the offset along the normal (default: the paper's value for NAME)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--sampling", choices=("area", "parameter"), default="area",
+                   help="uniform by surface area (default, like a scanner) or uniform in the surface "
+                        "parameters (s, t), as the paper most likely sampled")
     p.add_argument("--normals", action="store_true", help="also write the true normals (nx, ny, nz)")
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_synth)
@@ -475,13 +491,18 @@ def _dxf_available() -> bool:
     return _DXF_AVAILABLE
 
 
-def _output_files(model, *, mesh_format: str = "ply", caps: bool = True) -> dict[str, Callable]:
+def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_points=None,
+                  source: str | None = None) -> dict[str, Callable]:
     """Everything a reconstruction writes, computed now; name -> ``write(path)`` callables.
+
+    With ``report_points`` (the input points) the files include ``report.html`` about ``source``.
 
     Raises
     ------
     ReconstructionError
         The model has no valid surface mesh (e.g. the radius changes faster than the spine).
+    InputError
+        ``report_points`` are given and the 'report' extra is missing.
     """
     from .io import write_json, write_mesh, write_spine_csv, write_spine_dxf
     from .surface import surface_mesh
@@ -502,7 +523,19 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True) -> dict
     if _dxf_available():
         spine = model.spine
         files["spine.dxf"] = lambda path: write_spine_dxf(path, spine.t, spine.c, spine.k, points, radius)
+    if report_points is not None:
+        from .report import render_report
+
+        page = render_report(model, report_points, source=source)
+        files["report.html"] = lambda path: path.write_text(page, encoding="utf-8")
     return files
+
+
+def _check_report_extra() -> None:
+    """Fail before any work if ``--report`` was asked for and plotly or matplotlib is missing."""
+    from .report import require_report_extra
+
+    require_report_extra()
 
 
 def _spine_length(model) -> float:
@@ -569,6 +602,8 @@ def _cmd_reconstruct(args, console: _Console) -> int:
         except ImportError:
             raise InputError(f"writing .{args.mesh_format} meshes needs the 'mesh' extra — "
                              "pip install 'canalsurf[mesh]', or use --mesh-format ply") from None
+    if args.report:
+        _check_report_extra()
     _check_output_folder(args.output)
     if not _dxf_available():
         log.info("ezdxf is not installed: spine.dxf is skipped (pip install 'canalsurf[dxf]')")
@@ -587,7 +622,8 @@ def _cmd_reconstruct(args, console: _Console) -> int:
             log.info("%s: %d points, normals %s", path, len(points),
                      "from the file" if normals is not None else "estimated")
             model = _reconstruct_cloud(points, normals, str(path), options, console)
-            files = _output_files(model, mesh_format=args.mesh_format, caps=args.caps)
+            files = _output_files(model, mesh_format=args.mesh_format, caps=args.caps,
+                                  report_points=points if args.report else None, source=str(path))
             try:
                 written = _write_files(folder, files)
             except OSError as exc:
@@ -614,12 +650,15 @@ def _cmd_demo(args, console: _Console) -> int:
     from .synth import SURFACES, make_tube
 
     folder = args.output
+    if args.report:
+        _check_report_extra()
     _check_output_folder(folder)
     tube = make_tube(DEMO_SURFACE, n=DEMO_POINTS, rng=DEMO_SEED)
     log.info("demo: %s, %d points, noise %g, seed %d", DEMO_SURFACE, DEMO_POINTS, tube.noise, DEMO_SEED)
     model = _reconstruct_cloud(tube.points, None, "demo", {}, console)
     files = {"input.ply": lambda path: write_points(path, tube.points, None)}
-    files.update(_output_files(model))
+    files.update(_output_files(model, report_points=tube.points if args.report else None,
+                               source=f"canalsurf demo ({DEMO_SURFACE})"))
     try:
         written = _write_files(folder, files)
     except OSError as exc:
@@ -667,7 +706,7 @@ def _cmd_synth(args, console: _Console) -> int:
     if path.suffix.lower() not in POINT_WRITE_FORMATS:
         raise InputError(f"{path}: cannot write points as {path.suffix or '(no suffix)'!r} — "
                          f"use one of {', '.join(POINT_WRITE_FORMATS)}")
-    tube = make_tube(args.name, n=args.n, noise=args.noise, rng=args.seed)
+    tube = make_tube(args.name, n=args.n, noise=args.noise, rng=args.seed, sampling=args.sampling)
     created = _make_dirs(path.parent)
     try:
         write_points(path, tube.points, tube.normals if args.normals else None)

@@ -61,8 +61,9 @@ RADIUS_KNOTS_PER_RADIUS = 3.0
 SMOOTHING = 1e-3
 
 # --- refinement with all points -------------------------------------------------------------------
-#: Gauss-Newton passes of the joint spine/radius fit.
-REFINE_ITERATIONS = 8
+#: Most Gauss-Newton passes of the joint spine/radius fit (it stops earlier once converged; open ends
+#: move by at most one r0 per pass, so an end far from the first guess needs several).
+REFINE_ITERATIONS = 25
 #: Residuals beyond this many robust standard deviations are treated as outliers.
 OUTLIER_SIGMAS = 3.0
 

@@ -198,10 +198,12 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                 fits["pipe"] = refine_fit(pts, start, constant_spline(eq6), closed=curve.closed,
                                           spine_segments=nseg, radius_segments=None, reach=r0)
             if kind == "auto":
-                both = fits["canal"].inlier & fits["pipe"].inlier
-                rss = {name: float((f.residual[both] ** 2).sum()) for name, f in fits.items()}
+                # Both fits scored on all points with the same outlier cut: a fit that went wrong
+                # must not look good by calling most points outliers.
+                cut = C.OUTLIER_SIGMAS * robust_sigma(fits["canal"].residual)
+                rss = {name: float(np.minimum(f.residual**2, cut**2).sum()) for name, f in fits.items()}
                 samples = fits["canal"].radius(np.linspace(0, 1, 200))
-                kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], int(both.sum()), rseg + 2,
+                kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(pts), rseg + 2,
                                                samples) else "pipe"
             fit = fits[kind]
             spine, radius_fn, residual = fit.spine, fit.radius, fit.residual

@@ -14,12 +14,15 @@ the footpoints, so that it ends where the tube ends, and re-parameterised by arc
 
 from __future__ import annotations
 
+
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
 from scipy.interpolate import BSpline
+from scipy.linalg import eigh
 from scipy.spatial import cKDTree
+from threadpoolctl import threadpool_limits
 
 from .constants import OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
 from .spine import arclength_reparametrize, constant_spline, curve_length, design_matrix, n_coefficients, penalty
@@ -33,10 +36,24 @@ FOOTPOINT_TOL = 1e-10
 GCV_GRID = 10.0 ** np.arange(0.0, 6.5, 0.5)
 #: Gaps averaged for the local footpoint spacing at an end.
 END_GAPS = 8
+#: The fit has converged when a pass's relative cost reduction changes by less than this from the
+#: last pass and neither end moves by more than ``CONVERGED_END`` of the reach.
+CONVERGED_GAIN = 1e-4
+CONVERGED_END = 0.01
 #: Levenberg-Marquardt damping factors tried in turn until the cost falls.
 LM_DAMPING = (1e-3, 1e-1, 1.0, 10.0, 100.0)
-#: Dense samples of the spine per unit of its parameter for the footpoint start values.
-FOOTPOINT_SAMPLES = 4000
+#: Clouds at least this large query their KD-trees on all cores.
+PARALLEL_MIN_POINTS = 50_000
+#: Samples of the spine the footpoint search starts from; on a canal a coarser set, of which the
+#: nearest ``FOOTPOINT_CANDIDATES`` are tried (Newton refines the start either way).
+FOOTPOINT_SAMPLES = 1024
+FOOTPOINT_COARSE = 256
+FOOTPOINT_CANDIDATES = 64
+
+
+def _workers(points: np.ndarray) -> int:
+    """Threads for a KD-tree query: starting them costs more than it saves on small clouds."""
+    return -1 if len(points) >= PARALLEL_MIN_POINTS else 1
 
 
 def robust_sigma(residual: np.ndarray) -> float:
@@ -62,22 +79,26 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *,
         ``|P - C(t)| - r(t)``: positive outside the surface.
     """
     ts = np.linspace(0.0, 1.0, FOOTPOINT_SAMPLES)
-    centres, radii = spine(ts), radius(ts)
-    # Start at the sample minimising |P - C| - r (on a canal not the nearest centre): only samples
-    # within (nearest distance + spread of r) can win.
-    tree = cKDTree(centres)
-    near_d, near = tree.query(points, workers=-1)
-    t = ts[near]
+    radii = radius(ts)
     spread = float(np.ptp(radii))
-    if spread > 0:
-        best = near_d - radii[near]
-        cand = tree.query_ball_point(points, near_d + spread, workers=-1)
-        for i, c in enumerate(cand):
-            c = np.asarray(c)
-            f = np.linalg.norm(points[i] - centres[c], axis=1) - radii[c]
-            j = int(np.argmin(f))
-            if f[j] < best[i]:
-                best[i], t[i] = f[j], ts[c[j]]
+    if spread == 0:
+        t = ts[cKDTree(spine(ts)).query(points, workers=_workers(points))[1]]
+    else:
+        # Start at the sample minimising |P - C| - r (on a canal not the nearest centre), searched
+        # among the nearest samples; only samples within (nearest distance + spread of r) can win,
+        # so points whose candidate list may be too short get an exact ball search.
+        ts = np.linspace(0.0, 1.0, FOOTPOINT_COARSE)
+        centres, radii = spine(ts), radius(ts)
+        k = min(FOOTPOINT_CANDIDATES, len(ts))
+        dist, idx = cKDTree(centres).query(points, k=k, workers=_workers(points))
+        f = dist - radii[idx]
+        t = ts[idx[np.arange(len(points)), np.argmin(f, axis=1)]]
+        short = np.flatnonzero(dist[:, -1] < dist[:, 0] + spread)
+        if len(short):
+            tree = cKDTree(centres)
+            for i, c in zip(short, tree.query_ball_point(points[short], dist[short, 0] + spread)):
+                c = np.asarray(c, dtype=np.intp)
+                t[i] = ts[c[np.argmin(np.linalg.norm(points[i] - centres[c], axis=1) - radii[c])]]
     d1, d2 = spine.derivative(1), spine.derivative(2)
     r1, r2 = radius.derivative(1), radius.derivative(2)
     active = np.ones(len(points), bool)
@@ -161,7 +182,17 @@ def _end(s: np.ndarray) -> float:
     return float(s[0] - (s[m] - s[0]) / m)
 
 
-def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool, spine_segments: int,
+def refine(points: np.ndarray, spine: BSpline, radius: BSpline, **kwargs) -> RefineResult:
+    """Fit spine and radius to the points by robust Gauss-Newton (see :func:`_refine`).
+
+    The dense systems have only a few hundred unknowns; BLAS threads cost far more than they save on
+    them (and thrash on a busy machine), so the fit runs with one BLAS thread.
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _refine(points, spine, radius, **kwargs)
+
+
+def _refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool, spine_segments: int,
            radius_segments: int | None, iterations: int = REFINE_ITERATIONS,
            reach: float = 0.0) -> RefineResult:
     """Fit spine and radius to the points by robust Gauss-Newton.
@@ -187,6 +218,7 @@ def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool,
     """
     n = len(points)
     inlier = np.ones(n, bool)
+    last_gain, last_ends = np.inf, np.full(2, np.inf)
     for it in range(iterations + 1):
         segs, rsegs = spine_segments, radius_segments
         if closed:
@@ -212,24 +244,37 @@ def refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool,
             # Levenberg-Marquardt: accept a step only if the truncated cost (outliers count as
             # ``cut``) falls with re-computed footpoints; otherwise damp harder.
             cost = np.minimum(res**2, cut**2).sum()
+            gain = 0.0
             system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
             lam = _gcv_smoothing(*system, floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
             for damping in LM_DAMPING:
                 new_spine, new_radius = _step(system, spine, radius, segs, rsegs, closed, lam, damping)
                 new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed)
-                if np.minimum(new_res**2, cut**2).sum() < cost:
+                new_cost = np.minimum(new_res**2, cut**2).sum()
+                if new_cost < cost:
                     spine, radius, t, res = new_spine, new_radius, new_t, new_res
+                    gain = 1.0 - new_cost / cost
                     break
         if not closed:
             length = curve_length(spine)
             ti = np.sort(t[inlier]) * length
             lo = max(_end(ti), 0.0) / length
             hi = min(length - _end(length - ti[::-1]), length) / length
+            ends = np.array([lo * length, (1 - hi) * length])
             spine, extra, _ = arclength_reparametrize(
                 spine, n_segments=spine_segments, closed=False, a=lo, b=hi,
                 extra=[] if rsegs is None else [(radius, radius_segments)])
             if rsegs is not None:
                 radius = extra[0]
+        else:
+            ends = np.zeros(2)  # nothing to trim on a loop
+        if it < iterations:
+            # Growing and trimming the ends perturbs the fit a little each pass, so "converged" means
+            # the ends and the pass's gain have stopped changing, not that the gain is zero.
+            if (abs(gain - last_gain) < CONVERGED_GAIN
+                    and np.abs(ends - last_ends).max() < CONVERGED_END * max(reach, 1e-300)):
+                break
+            last_gain, last_ends = gain, ends
 
     t, res = footpoints(points, spine, radius, closed=closed)
     return RefineResult(spine, radius, t, res, inlier, iterations)
@@ -283,14 +328,18 @@ def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float) -> float:
     The noise of a scan, not a fixed rule, then decides how much the spine is smoothed: straight,
     well-sampled stretches are averaged over many points while sharp bends keep their shape.  The
     search starts at ``floor``: the straight margins past the ends carry no data, and only the penalty
-    holds them.
+    holds them.  One generalised eigendecomposition (Demmler-Reinsch) makes every trial weight cheap.
     """
+    M = JtWJ + floor * Pen
+    M += 1e-12 * np.trace(M) / len(M) * np.eye(len(M))
+    s, V = eigh(Pen, M)  # V^T M V = I, V^T Pen V = diag(s)
+    s = np.maximum(s, 0.0)
     best, best_lam = np.inf, floor
     for lam in floor * GCV_GRID:
-        A = JtWJ + lam * Pen + 1e-12 * np.trace(JtWJ) / len(x) * np.eye(len(x))
-        step = np.linalg.solve(A, -(g + lam * (Pen @ x)))
+        shrink = 1.0 / (1.0 + (lam - floor) * s)  # eigenvalues of (M + (lam - floor) Pen)^-1 in V
+        step = -V @ (shrink * (V.T @ (g + lam * (Pen @ x))))
         fit_rss = rss + 2 * step @ g + step @ JtWJ @ step
-        dof = np.trace(np.linalg.solve(A, JtWJ))
+        dof = float(np.sum(shrink * (1.0 - floor * s)))  # tr(A^-1 JtWJ), JtWJ = M - floor Pen
         if dof >= nw:
             continue
         gcv = nw * max(fit_rss, 0.0) / (nw - dof) ** 2

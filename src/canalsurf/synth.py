@@ -1,9 +1,10 @@
 """Seeded test surfaces: the paper's Section 4 experiments and a few more.
 
 Every generator returns a :class:`SyntheticTube`: the sampled points with their true outward normals
-and the ground truth (spine and radius as B-splines on ``t in [0, 1]``).  Points are drawn uniformly in
-the surface parameters ``(s, t)`` -- as the paper most likely did -- and perturbed by a uniform random
-offset in ``[-noise, noise]`` along the true normal (the paper's ``epsilon(s, t)``).
+and the ground truth (spine and radius as B-splines on ``t in [0, 1]``).  Points are drawn uniformly by
+surface area (a scanner's even density) or, with ``sampling="parameter"``, uniformly in the surface
+parameters ``(s, t)`` as the paper most likely did; each is perturbed by a uniform random offset in
+``[-noise, noise]`` along the true normal (the paper's ``epsilon(s, t)``).
 
 The paper's surfaces (Section 4, Tables 1-3):
 
@@ -124,34 +125,74 @@ def _frame(tangent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return n1, np.cross(tangent, n1)
 
 
-def sample_tube(spine: BSpline, radius: BSpline, n: int, noise: float, rng) -> tuple[np.ndarray, np.ndarray]:
-    """Sample ``n`` points uniformly in (s, t) on the canal surface of ``spine`` and ``radius``.
-
-    Each point lies on the characteristic circle of parameter t (the envelope of the spheres, not
-    merely a circle of radius r(t)) and is moved by U(-noise, noise) along the true normal.
-
-    Returns
-    -------
-    points, normals : ndarray, shape (n, 3)
-    """
-    t = rng.uniform(0.0, 1.0, n)
-    s = rng.uniform(0.0, 2 * np.pi, n)
+def _envelope(spine: BSpline, radius: BSpline, t: np.ndarray, s: np.ndarray, n1=None, n2=None):
+    """Points and outward normals of the canal surface at (s, t), and the frame used."""
     d1 = spine.derivative()(t)
     speed = np.linalg.norm(d1, axis=1)
     tangent = d1 / speed[:, None]
     rho = radius.derivative()(t) / speed  # dr/ds: sine of the envelope's angle
     if np.any(np.abs(rho) >= 1):
         raise InputError("the radius changes faster than the spine advances (|dr/ds| >= 1): no envelope")
-    n1, n2 = _frame(tangent)
+    if n1 is None:
+        n1, n2 = _frame(tangent)
+    else:  # keep the given frame, made orthogonal to this tangent
+        n1 = n1 - np.einsum("ij,ij->i", n1, tangent)[:, None] * tangent
+        n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
+        n2 = np.cross(tangent, n1)
     normal = (-rho[:, None] * tangent
               + np.sqrt(1 - rho**2)[:, None] * (np.cos(s)[:, None] * n1 + np.sin(s)[:, None] * n2))
+    return spine(t) + radius(t)[:, None] * normal, normal, n1, n2
+
+
+def _area_element(spine: BSpline, radius: BSpline, t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """|A_s x A_t| by finite differences (the frame is carried along so it does not jump)."""
+    h = 1e-6
+    a, _, n1, n2 = _envelope(spine, radius, t, s)
+    a_s = (_envelope(spine, radius, t, s + h, n1, n2)[0] - a) / h
+    a_t = (_envelope(spine, radius, np.minimum(t + h, 1.0), s, n1, n2)[0] - a) / h
+    return np.linalg.norm(np.cross(a_s, a_t), axis=1)
+
+
+def sample_tube(spine: BSpline, radius: BSpline, n: int, noise: float, rng,
+                sampling: str = "area") -> tuple[np.ndarray, np.ndarray]:
+    """Sample ``n`` points on the canal surface of ``spine`` and ``radius``.
+
+    Each point lies on the characteristic circle of its parameter t (the envelope of the spheres,
+    not merely a circle of radius r(t)) and is moved by U(-noise, noise) along the true normal.
+
+    Parameters
+    ----------
+    sampling : {"area", "parameter"}
+        ``"area"``: uniform by surface area, like a scanner's even density (rejection sampling on
+        the area element).  ``"parameter"``: uniform in (s, t), as the paper most likely did; the
+        density then follows the spine's parameter speed (the ends of Table 2's spine get a third of
+        the average density).
+
+    Returns
+    -------
+    points, normals : ndarray, shape (n, 3)
+    """
+    choice(sampling, "sampling", ("area", "parameter"))
+    if sampling == "parameter":
+        t = rng.uniform(0.0, 1.0, n)
+        s = rng.uniform(0.0, 2 * np.pi, n)
+    else:
+        ts, ss = np.empty(0), np.empty(0)
+        bound = 1.2 * _area_element(spine, radius, rng.uniform(0, 1, 20000),
+                                    rng.uniform(0, 2 * np.pi, 20000)).max()
+        while len(ts) < n:
+            t = rng.uniform(0.0, 1.0, 2 * n)
+            s = rng.uniform(0.0, 2 * np.pi, 2 * n)
+            keep = rng.uniform(0.0, bound, 2 * n) < _area_element(spine, radius, t, s)
+            ts, ss = np.concatenate([ts, t[keep]]), np.concatenate([ss, s[keep]])
+        t, s = ts[:n], ss[:n]
+    points, normal, _, _ = _envelope(spine, radius, t, s)
     eps = rng.uniform(-noise, noise, n) if noise > 0 else np.zeros(n)
-    points = spine(t) + (radius(t) + eps)[:, None] * normal
-    return points, normal
+    return points + eps[:, None] * normal, normal
 
 
 def make_tube(name: str = "fig9-pipe", *, n: int = 2000, noise: float | None = None,
-              rng=None) -> SyntheticTube:
+              rng=None, sampling: str = "area") -> SyntheticTube:
     """Sample one of the named test surfaces (see :data:`SURFACES`).
 
     Parameters
@@ -164,6 +205,9 @@ def make_tube(name: str = "fig9-pipe", *, n: int = 2000, noise: float | None = N
         Half-width of the uniform perturbation along the normal; default the paper's value.
     rng : numpy.random.Generator or int, optional
         Random generator or seed (default seed 0, so the same call gives the same cloud).
+    sampling : {"area", "parameter"}
+        Uniform by area (default), or uniform in the surface parameters (s, t) as the paper most
+        likely sampled (see :func:`sample_tube`).
 
     Examples
     --------
@@ -180,5 +224,5 @@ def make_tube(name: str = "fig9-pipe", *, n: int = 2000, noise: float | None = N
         raise InputError(f"noise must be >= 0, got {noise!r}")
     rng = np.random.default_rng(0 if rng is None else rng)
     spine, radius = spine_f(), radius_f()
-    points, normals = sample_tube(spine, radius, int(n), noise, rng)
+    points, normals = sample_tube(spine, radius, int(n), noise, rng, sampling)
     return SyntheticTube(name, points, normals, spine, radius, closed, noise)

@@ -1,0 +1,144 @@
+"""End to end: the accuracy bar on the paper's four experiments, and how reconstruct behaves.
+
+The bar (normals estimated, automatic parameters, 2000 points as in the paper), for every seed:
+closest-point spine distance mean <= 3 % and max <= 15 % of the mean true radius; radius mean
+absolute error <= 1.5 % and max <= 8 %; the whole tube covered (every true spine point within half a
+radius of the reconstruction).
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+import canalsurf
+from canalsurf.metrics import compare
+
+PAPER = ["fig9-pipe", "fig15-pipe", "fig14-canal", "fig16-canal"]
+SPINE_MEAN, SPINE_MAX, RADIUS_MEAN, RADIUS_MAX, COVERAGE = 0.03, 0.15, 0.015, 0.08, 0.5
+
+
+def assert_bar(model, tube):
+    c = compare(model, tube)
+    r = c["mean_radius"]
+    assert model.kind == ("pipe" if tube.is_pipe else "canal")
+    assert model.closed == tube.closed
+    assert c["spine_mean"] <= SPINE_MEAN * r, c
+    assert c["spine_max"] <= SPINE_MAX * r, c
+    assert c["radius"]["mean"] <= RADIUS_MEAN * r, c
+    assert c["radius"]["max"] <= RADIUS_MAX * r, c
+    assert c["coverage_gap"] <= COVERAGE * r, c
+
+
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("name", PAPER)
+def test_paper_experiments_meet_the_bar(name, seed):
+    tube = canalsurf.make_tube(name, rng=seed)
+    assert_bar(canalsurf.reconstruct(tube.points), tube)
+
+
+@pytest.mark.parametrize("name", ["helix", "torus"])
+def test_more_shapes_meet_the_bar(name):
+    tube = canalsurf.make_tube(name, rng=3)
+    assert_bar(canalsurf.reconstruct(tube.points), tube)
+
+
+def test_given_normals_are_used():
+    tube = canalsurf.make_tube("fig16-canal", rng=4)
+    model = canalsurf.reconstruct(tube.points, normals=tube.normals)
+    assert_bar(model, tube)
+    assert np.allclose(model.stages["normals"], tube.normals, rtol=0, atol=1e-12)
+
+
+def test_same_input_gives_identical_model():
+    tube = canalsurf.make_tube("fig14-canal", rng=2)
+    a = canalsurf.reconstruct(tube.points).to_dict()
+    b = canalsurf.reconstruct(tube.points.copy()).to_dict()
+    for d in (a, b):
+        d["diagnostics"].pop("seconds")
+    assert json.dumps(a) == json.dumps(b)
+
+
+def test_input_is_not_modified():
+    tube = canalsurf.make_tube("fig9-pipe", rng=0)
+    before = tube.points.copy()
+    canalsurf.reconstruct(tube.points)
+    assert np.array_equal(tube.points, before)
+
+
+def test_units_and_placement_do_not_matter():
+    tube = canalsurf.make_tube("fig9-pipe", rng=5)
+    base = canalsurf.reconstruct(tube.points)
+    shift = np.array([1e6, 5e6, 1e2])
+    moved = canalsurf.reconstruct(tube.points * 1000.0 + shift)
+    p0, r0 = base.sample(300)
+    p1, r1 = moved.sample(300)
+    size = np.ptp(p0, axis=0).max()
+    assert np.abs((p1 - shift) / 1000.0 - p0).max() <= 1e-6 * size
+    assert np.abs(r1 / 1000.0 - r0).max() <= 1e-6 * r0.max()
+
+
+def test_closed_loop_comes_back_closed():
+    tube = canalsurf.make_tube("torus", rng=1)
+    model = canalsurf.reconstruct(tube.points)
+    assert model.closed
+    assert np.allclose(model.spine(0.0), model.spine(1.0), atol=1e-9)
+
+
+def test_paper_algorithm_as_printed_reproduces_the_figure_9_history():
+    # Figure 9: delta = 0.2, mu = 0.7, R = 0.2 -> five moves (Section 4).
+    tube = canalsurf.make_tube("fig9-pipe", rng=0)
+    model = canalsurf.reconstruct(tube.points, kind="pipe", R=0.2, delta=0.2, mu=0.7, stop="paper",
+                                  refine=False)
+    assert model.diagnostics["iterations"] == 5
+    assert model.diagnostics["stop_rule"] == "mu"
+    assert model.diagnostics["break_count"] >= 0.7 * len(tube.points)
+    assert abs(model.diagnostics["eq6_radius"] - 1.0) < 0.1
+
+
+def test_refinement_improves_on_the_paper_result():
+    tube = canalsurf.make_tube("fig9-pipe", rng=6)
+    paper = compare(canalsurf.reconstruct(tube.points, refine=False), tube)
+    ours = compare(canalsurf.reconstruct(tube.points), tube)
+    assert ours["spine_mean"] < paper["spine_mean"]
+    assert ours["spine_max"] < paper["spine_max"]
+
+
+def _sphere(n=2000, seed=0):
+    v = np.random.default_rng(seed).normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("cloud", [
+    pytest.param(lambda rng: _sphere(), id="sphere"),
+    pytest.param(lambda rng: np.column_stack([rng.uniform(0, 10, (2000, 2)), rng.normal(0, 0.01, 2000)]),
+                 id="noisy-plane"),
+    pytest.param(lambda rng: rng.uniform(0, 1, (2000, 3)), id="noise-blob"),
+])
+def test_not_a_tube_is_refused(cloud):
+    with pytest.raises(canalsurf.ReconstructionError, match="not"):
+        canalsurf.reconstruct(cloud(np.random.default_rng(0)))
+
+
+@pytest.mark.parametrize("points, match", [
+    (np.zeros((0, 3)), "at least"),
+    (np.ones((100, 3)), "identical"),
+    (np.column_stack([np.arange(100.0), np.zeros(100), np.zeros(100)]), "coplanar or collinear"),
+    (np.column_stack([np.arange(100.0), np.arange(100.0) % 7, np.zeros(100)]), "coplanar"),
+])
+def test_degenerate_input_is_bad_input(points, match):
+    with pytest.raises(canalsurf.InputError, match=match):
+        canalsurf.reconstruct(points)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"mu": 2.0}, "mu must lie in"),
+    ({"R": -1.0}, "R must be a positive"),
+    ({"kind": "tube"}, "kind must be one of"),
+    ({"stop": "never"}, "stop must be one of"),
+    ({"k": 1}, "k must be between"),
+])
+def test_impossible_parameters_are_refused(kwargs, match):
+    tube = canalsurf.make_tube("fig9-pipe", n=500)
+    with pytest.raises(canalsurf.InputError, match=match):
+        canalsurf.reconstruct(tube.points, **kwargs)
