@@ -76,5 +76,12 @@ CANAL_MIN_VARIATION = 0.05
 #: mu of Algorithm 2 under the automatic stop: keep shrinking until nearly all points stopped (the
 #: patience rule ends it); the paper's 0.8 stops while the thick end of a canal is still shrinking.
 MU_CANAL_AUTO = 0.98
+#: Larger scans run the paper's stages (normals ... ordering) on a seeded random subset of this many
+#: points: with 16-neighbour patches the normals and the curvature radius get noisier as the density
+#: grows (NOTES), and 5,000 points already define a tube's spine for the final fit.
+MAX_SHRINK_POINTS = 5_000
+#: ... and fit spine and radius to at most this many (a superset of the former); all points are only
+#: measured against the result.  See docs/performance.md.
+MAX_FIT_POINTS = 30_000
 #: Fewer points than this share reaching the spine means the shape is not a tube.
 MIN_KEPT_SHARE = 0.3

@@ -30,7 +30,7 @@ from .thin import mls_thin
 __all__ = ["reconstruct", "STAGES"]
 
 #: Stage names, in the order ``progress`` reports them.
-STAGES = ("normals", "shrink", "thin", "order", "radius", "refine")
+STAGES = ("normals", "shrink", "thin", "order", "radius", "refine", "residual")
 
 log = logging.getLogger(__name__)
 
@@ -131,12 +131,22 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     if np.linalg.svd(pts[:: max(1, len(pts) // 5000)], compute_uv=False)[-1] < 1e-9 * np.sqrt(len(pts)):
         raise InputError("the points are coplanar or collinear — a tube needs a 3D scan")
 
+    given = None if normals is None else as_normals(normals, len(pts))
+    # A large scan is worked on through seeded random subsets (they keep its density pattern): the
+    # paper's stages see at most MAX_SHRINK_POINTS -- k-nearest-neighbour normals and curvature get
+    # noisier, not better, as the density grows -- and the final fit at most MAX_FIT_POINTS, a subset of
+    # the same draw.  All points are only measured against the result.
+    all_pts = pts
+    order = np.random.default_rng(0).permutation(len(pts)) if len(pts) > C.MAX_SHRINK_POINTS else None
+    fit_pts = all_pts if order is None else all_pts[np.sort(order[: C.MAX_FIT_POINTS])]
+    if order is not None:
+        pick = np.sort(order[: C.MAX_SHRINK_POINTS])
+        pts = pts[pick]
+        given = None if given is None else given[pick]
+
     with timer("normals"):
         tree = cKDTree(pts)
-        if normals is None:
-            nrm = estimate_normals(pts, k=k, tree=tree)
-        else:
-            nrm = as_normals(normals, len(pts))
+        nrm = estimate_normals(pts, k=k, tree=tree) if given is None else given
         r0 = curvature_radius(pts, nrm, tree=tree)
     if not np.isfinite(r0) or r0 > 10:
         raise ReconstructionError("the surface is flat (no curvature around a spine) — "
@@ -191,11 +201,11 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         if refine:
             fits = {}
             if kind in ("auto", "canal"):
-                fits["canal"] = refine_fit(pts, spine, radius_fn, closed=curve.closed, spine_segments=nseg,
+                fits["canal"] = refine_fit(fit_pts, spine, radius_fn, closed=curve.closed, spine_segments=nseg,
                                            radius_segments=rseg, reach=r0)
             if kind in ("auto", "pipe"):
                 start = fits["canal"].spine if "canal" in fits else spine
-                fits["pipe"] = refine_fit(pts, start, constant_spline(eq6), closed=curve.closed,
+                fits["pipe"] = refine_fit(fit_pts, start, constant_spline(eq6), closed=curve.closed,
                                           spine_segments=nseg, radius_segments=None, reach=r0)
             if kind == "auto":
                 # Both fits scored on all points with the same outlier cut: a fit that went wrong
@@ -203,7 +213,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                 cut = C.OUTLIER_SIGMAS * robust_sigma(fits["canal"].residual)
                 rss = {name: float(np.minimum(f.residual**2, cut**2).sum()) for name, f in fits.items()}
                 samples = fits["canal"].radius(np.linspace(0, 1, 200))
-                kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(pts), rseg + 2,
+                kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(fit_pts), rseg + 2,
                                                samples) else "pipe"
             fit = fits[kind]
             spine, radius_fn, residual = fit.spine, fit.radius, fit.residual
@@ -215,8 +225,11 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                                                radius_fn(np.linspace(0, 1, 200))) else "pipe"
             if kind == "pipe":
                 radius_fn = constant_spline(eq6)
-            residual = footpoints(pts, spine, radius_fn, closed=curve.closed)[1]
+            residual = footpoints(fit_pts, spine, radius_fn, closed=curve.closed)[1]
 
+    with timer("residual"):
+        if len(all_pts) > len(fit_pts):
+            residual = footpoints(all_pts, spine, radius_fn, closed=curve.closed)[1]
     rms = float(np.sqrt(np.mean(residual**2)))
     mean_r = float(np.mean(radius_fn(np.linspace(0, 1, 200))))
     if not mean_r > 0 or rms > MAX_RELATIVE_RESIDUAL * mean_r:
@@ -231,7 +244,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     parameters.update(k=int(k or C.NORMAL_NEIGHBOURS), r0=r0 * scale, stop=stop, neighbours=neighbours,
                       refine=bool(refine), spine_segments=nseg, radius_segments=rseg)
     diagnostics = {
-        "n_points": len(pts), "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]),
+        "n_points": len(all_pts), "n_shrink_points": len(pts), "n_fit_points": len(fit_pts),
+        "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]),
         "stop_rule": sr.stop_rule, "points_reached_spine": int(len(kept)), "closed": bool(curve.closed),
         "eq6_radius": eq6 * scale, "rms_residual": rms * scale,
         "noise_sigma": robust_sigma(residual) * scale, "seconds": dict(timer),

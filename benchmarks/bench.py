@@ -1,0 +1,122 @@
+"""Speed and memory of the whole ``canalsurf reconstruct`` process against the machine's "floor".
+
+For each size the paper's Figure 9 pipe is sampled (seeded, area-uniform), written as a binary PLY,
+and reconstructed by the command line in a child process (file in, model.json + surface.ply out, no
+parameters).  The floor -- one KD-tree build plus a 16-nearest-neighbour query over all the points on
+all cores -- is measured in the same run, so machine noise cancels in the ratio.  Peak memory is the
+child's maximum resident set size (``os.wait4``).  Accuracy is measured against the ground truth.
+
+Run from the repository root::
+
+    python benchmarks/bench.py                 # 2k, 20k, 200k, 1M points
+    python benchmarks/bench.py --full          # ... and 10M
+    python benchmarks/bench.py --markdown docs/performance.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+import canalsurf
+from canalsurf.io import write_points
+from canalsurf.metrics import compare
+
+SIZES = (2_000, 20_000, 200_000, 1_000_000)
+FULL = (10_000_000,)
+COMMAND = "python benchmarks/bench.py --markdown docs/performance.md"
+
+
+def floor_seconds(points: np.ndarray) -> float:
+    """One KD-tree build and a 16-NN query over all points, all cores."""
+    start = time.perf_counter()
+    cKDTree(points).query(points, k=16, workers=-1)
+    return time.perf_counter() - start
+
+
+def run_cli(cloud: Path, out: Path) -> tuple[float, int, dict, int]:
+    """Wall seconds, peak RSS in bytes, the --json summary and the exit code of one reconstruction."""
+    exe = Path(sys.executable).with_name("canalsurf")
+    start = time.perf_counter()
+    proc = subprocess.Popen([str(exe), "--json", "-q", "reconstruct", str(cloud), "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    stdout = proc.stdout.read()
+    stderr = proc.stderr.read()
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - start
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    summary = json.loads(stdout.decode().splitlines()[-1]) if stdout.strip() else {"error": stderr.decode()}
+    return wall, usage.ru_maxrss * 1024, summary, proc.returncode
+
+
+def bench(n: int, workdir: Path) -> dict:
+    tube = canalsurf.make_tube("fig9-pipe", n=n, rng=0)
+    cloud = workdir / f"fig9-{n}.ply"
+    write_points(cloud, tube.points, None)
+    floor = floor_seconds(tube.points)
+    wall, rss, summary, code = run_cli(cloud, workdir / f"out-{n}")
+    row = {"points": n, "wall": wall, "floor": floor, "ratio": wall / floor, "rss": rss, "exit": code}
+    if code == 0:
+        model = canalsurf.load_model(workdir / f"out-{n}" / "model.json")
+        c = compare(model, tube)
+        r = c["mean_radius"]
+        row.update(stages=summary["diagnostics"]["seconds"], spine_mean=c["spine_mean"] / r,
+                   spine_max=c["spine_max"] / r, radius=c["radius"]["max"] / r)
+    else:
+        row["error"] = summary.get("error", "")
+    return row
+
+
+def table(rows: list[dict]) -> str:
+    stages = ("normals", "shrink", "thin", "order", "radius", "refine", "residual")
+    head = ("| points | " + " | ".join(stages) + " | total wall s | floor s | ratio | peak MB "
+            "| spine mean / max (% r) | radius err (% r) |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for row in rows:
+        if row["exit"] != 0:
+            lines.append(f"| {row['points']:,} | failed (exit {row['exit']}): {row['error'].strip()} |")
+            continue
+        st = " | ".join(f"{row['stages'].get(s, 0.0):.2f}" for s in stages)
+        lines.append(f"| {row['points']:,} | {st} | {row['wall']:.2f} | {row['floor']:.2f} | "
+                     f"{row['ratio']:.2f} | {row['rss'] / 2**20:.0f} | {100 * row['spine_mean']:.2f} / "
+                     f"{100 * row['spine_max']:.1f} | {100 * row['radius']:.2f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--full", action="store_true", help="also 10 million points")
+    parser.add_argument("--sizes", type=int, nargs="*", help="point counts to run instead")
+    parser.add_argument("--markdown", type=Path, help="also write the table into this Markdown file")
+    args = parser.parse_args(argv)
+    sizes = args.sizes or (SIZES + (FULL if args.full else ()))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in sizes:
+            rows.append(bench(n, Path(tmp)))
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
+    text = table(rows)
+    print(text)
+    if args.markdown:
+        args.markdown.write_text(
+            "# Performance\n\nMade by `" + COMMAND + "` on the development machine (2 cores). "
+            "Stage columns are the seconds `reconstruct` reports for each stage; *total wall* is the "
+            "whole `canalsurf reconstruct` process (start-up, reading, meshing, writing); the *floor* is "
+            "one KD-tree build plus a 16-nearest-neighbour query over all points on all cores, measured "
+            "in the same run; *ratio* = total / floor; *peak MB* is the child process's maximum resident "
+            "set. Accuracy is against the ground truth of the sampled Figure 9 pipe (radius 1).\n\n"
+            + text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
