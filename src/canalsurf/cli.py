@@ -218,8 +218,9 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("files")
     g.add_argument("--mesh-format", choices=MESH_CHOICES, default="ply",
                    help="format of surface.<fmt> (default ply; obj stl glb off need trimesh)")
-    g.add_argument("--no-caps", dest="caps", action="store_false",
-                   help="leave the ends of an open tube open (default: capped, watertight)")
+    g.add_argument("--caps", action=argparse.BooleanOptionalAction, default=True,
+                   help="close the ends of an open tube so the mesh is watertight (default); "
+                        "--no-caps leaves them open")
     g.add_argument("--report", action="store_true",
                    help="also write report.html: a self-contained page (no network needed) with a 3-D "
                         "view of the points coloured by their distance from the surface, the radius "

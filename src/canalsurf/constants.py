@@ -80,8 +80,9 @@ MU_CANAL_AUTO = 0.98
 #: points: with 16-neighbour patches the normals and the curvature radius get noisier as the density
 #: grows (NOTES), and 5,000 points already define a tube's spine for the final fit.
 MAX_SHRINK_POINTS = 5_000
-#: ... and fit spine and radius to at most this many (a superset of the former); all points are only
-#: measured against the result.  See docs/performance.md.
+#: ... and fit spine and radius to at most this many (a superset of the former).  See docs/performance.md.
 MAX_FIT_POINTS = 30_000
+#: The RMS residual of a larger scan is estimated on a seeded sample of this many points.
+MAX_RESIDUAL_POINTS = 200_000
 #: Fewer points than this share reaching the spine means the shape is not a tube.
 MIN_KEPT_SHARE = 0.3

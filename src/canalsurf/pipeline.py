@@ -135,12 +135,12 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     # A large scan is worked on through seeded random subsets (they keep its density pattern): the
     # paper's stages see at most MAX_SHRINK_POINTS -- k-nearest-neighbour normals and curvature get
     # noisier, not better, as the density grows -- and the final fit at most MAX_FIT_POINTS, a subset of
-    # the same draw.  All points are only measured against the result.
+    # the same draw.  At most MAX_RESIDUAL_POINTS of them are measured against the result.
     all_pts = pts
-    order = np.random.default_rng(0).permutation(len(pts)) if len(pts) > C.MAX_SHRINK_POINTS else None
-    fit_pts = all_pts if order is None else all_pts[np.sort(order[: C.MAX_FIT_POINTS])]
-    if order is not None:
-        pick = np.sort(order[: C.MAX_SHRINK_POINTS])
+    draw = np.random.default_rng(0).permutation(len(pts)) if len(pts) > C.MAX_SHRINK_POINTS else None
+    fit_pts = all_pts if draw is None else all_pts[np.sort(draw[: C.MAX_FIT_POINTS])]
+    if draw is not None:
+        pick = np.sort(draw[: C.MAX_SHRINK_POINTS])
         pts = pts[pick]
         given = None if given is None else given[pick]
 
@@ -229,7 +229,10 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
 
     with timer("residual"):
         if len(all_pts) > len(fit_pts):
-            residual = footpoints(all_pts, spine, radius_fn, closed=curve.closed)[1]
+            # The RMS residual is a diagnostic, not a fit: a seeded sample estimates it far below its
+            # own spread, so a huge scan is not walked point by point for it.
+            measured = all_pts if draw is None else all_pts[np.sort(draw[: C.MAX_RESIDUAL_POINTS])]
+            residual = footpoints(measured, spine, radius_fn, closed=curve.closed)[1]
     rms = float(np.sqrt(np.mean(residual**2)))
     mean_r = float(np.mean(radius_fn(np.linspace(0, 1, 200))))
     if not mean_r > 0 or rms > MAX_RELATIVE_RESIDUAL * mean_r:
@@ -245,6 +248,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                       refine=bool(refine), spine_segments=nseg, radius_segments=rseg)
     diagnostics = {
         "n_points": len(all_pts), "n_shrink_points": len(pts), "n_fit_points": len(fit_pts),
+        "n_residual_points": len(residual),
         "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]),
         "stop_rule": sr.stop_rule, "points_reached_spine": int(len(kept)), "closed": bool(curve.closed),
         "eq6_radius": eq6 * scale, "rms_residual": rms * scale,
