@@ -5,11 +5,13 @@ and reconstructed by the command line in a child process (file in, model.json + 
 parameters).  The floor -- one KD-tree build plus a 16-nearest-neighbour query over all the points on
 all cores -- is measured in the same run, so machine noise cancels in the ratio.  Peak memory is the
 child's maximum resident set size (``os.wait4``).  Accuracy is measured against the ground truth.
+Each size is checked against its targets (``TARGETS``).
 
 Run from the repository root::
 
     python benchmarks/bench.py                 # 2k, 20k, 200k, 1M points
     python benchmarks/bench.py --full          # ... and 10M
+    python benchmarks/bench.py --repeat 3      # fastest of 3 runs (on a busy machine)
     python benchmarks/bench.py --markdown docs/performance.md
 """
 
@@ -34,6 +36,16 @@ from canalsurf.metrics import compare
 SIZES = (2_000, 20_000, 200_000, 1_000_000)
 FULL = (10_000_000,)
 COMMAND = "python benchmarks/bench.py --markdown docs/performance.md"
+#: Targets per size: (largest total wall / floor, largest total wall in seconds, largest peak MB).
+#: Where a ratio is given it is the target and the seconds only say roughly what it means on a
+#: typical machine; a paper-sized cloud has no meaningful floor, so there the seconds count
+#: (Python start-up and imports included).
+TARGETS = {
+    2_000: (None, 1.0, 200),
+    200_000: (1.3, 4.0, 600),
+    1_000_000: (0.7, 12.0, 1500),
+    10_000_000: (0.7, 150.0, 10_000),
+}
 
 
 def floor_seconds(points: np.ndarray) -> float:
@@ -58,12 +70,33 @@ def run_cli(cloud: Path, out: Path) -> tuple[float, int, dict, int]:
     return wall, usage.ru_maxrss * 1024, summary, proc.returncode
 
 
-def bench(n: int, workdir: Path) -> dict:
+def verdict(row: dict) -> str:
+    """Whether ``row`` meets the targets of its size: "yes", or what missed; "" without targets."""
+    if row["points"] not in TARGETS:
+        return ""
+    ratio, seconds, megabytes = TARGETS[row["points"]]
+    missed = []
+    if ratio is not None and row["ratio"] > ratio:
+        missed.append(f"ratio > {ratio:g}")
+    if ratio is None and row["wall"] > seconds:
+        missed.append(f"wall > {seconds:g} s")
+    if row["rss"] / 2**20 > megabytes:
+        missed.append(f"peak > {megabytes:,} MB")
+    return "no: " + ", ".join(missed) if missed else "yes"
+
+
+def bench(n: int, workdir: Path, repeat: int = 1) -> dict:
+    """One table row: the fastest of ``repeat`` floors and of ``repeat`` reconstructions.
+
+    Peak memory is the largest of the runs.
+    """
     tube = canalsurf.make_tube("fig9-pipe", n=n, rng=0)
     cloud = workdir / f"fig9-{n}.ply"
     write_points(cloud, tube.points, None)
-    floor = floor_seconds(tube.points)
-    wall, rss, summary, code = run_cli(cloud, workdir / f"out-{n}")
+    floor = min(floor_seconds(tube.points) for _ in range(repeat))
+    runs = [run_cli(cloud, workdir / f"out-{n}") for _ in range(repeat)]
+    wall, _, summary, code = min(runs, key=lambda r: (r[3] != 0, r[0]))
+    rss = max(r[1] for r in runs)
     row = {"points": n, "wall": wall, "floor": floor, "ratio": wall / floor, "rss": rss, "exit": code}
     if code == 0:
         model = canalsurf.load_model(workdir / f"out-{n}" / "model.json")
@@ -79,7 +112,7 @@ def bench(n: int, workdir: Path) -> dict:
 def table(rows: list[dict]) -> str:
     stages = ("normals", "shrink", "thin", "order", "radius", "refine", "residual")
     head = ("| points | " + " | ".join(stages) + " | total wall s | floor s | ratio | peak MB "
-            "| spine mean / max (% r) | radius err (% r) |")
+            "| spine mean / max (% r) | radius err (% r) | targets met |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for row in rows:
         if row["exit"] != 0:
@@ -88,7 +121,15 @@ def table(rows: list[dict]) -> str:
         st = " | ".join(f"{row['stages'].get(s, 0.0):.2f}" for s in stages)
         lines.append(f"| {row['points']:,} | {st} | {row['wall']:.2f} | {row['floor']:.2f} | "
                      f"{row['ratio']:.2f} | {row['rss'] / 2**20:.0f} | {100 * row['spine_mean']:.2f} / "
-                     f"{100 * row['spine_max']:.1f} | {100 * row['radius']:.2f} |")
+                     f"{100 * row['spine_max']:.1f} | {100 * row['radius']:.2f} | {verdict(row)} |")
+    return "\n".join(lines)
+
+
+def targets_table() -> str:
+    lines = ["| points | total wall / floor | total wall, roughly | peak MB |", "|---|---|---|---|"]
+    for n, (ratio, seconds, megabytes) in TARGETS.items():
+        wall = f"≤ {seconds:g} s" + (" (start-up and imports included)" if ratio is None else "")
+        lines.append(f"| {n:,} | {'—' if ratio is None else f'≤ {ratio:g}'} | {wall} | ≤ {megabytes:,} |")
     return "\n".join(lines)
 
 
@@ -96,25 +137,29 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--full", action="store_true", help="also 10 million points")
     parser.add_argument("--sizes", type=int, nargs="*", help="point counts to run instead")
+    parser.add_argument("--repeat", type=int, default=1,
+                        help="run floor and reconstruction this many times and keep the fastest")
     parser.add_argument("--markdown", type=Path, help="also write the table into this Markdown file")
     args = parser.parse_args(argv)
     sizes = args.sizes or (SIZES + (FULL if args.full else ()))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
-            rows.append(bench(n, Path(tmp)))
+            rows.append(bench(n, Path(tmp), repeat=max(1, args.repeat)))
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     text = table(rows)
     print(text)
     if args.markdown:
         args.markdown.write_text(
-            "# Performance\n\nMade by `" + COMMAND + "` on the development machine (2 cores). "
-            "Stage columns are the seconds `reconstruct` reports for each stage; *total wall* is the "
-            "whole `canalsurf reconstruct` process (start-up, reading, meshing, writing); the *floor* is "
-            "one KD-tree build plus a 16-nearest-neighbour query over all points on all cores, measured "
-            "in the same run; *ratio* = total / floor; *peak MB* is the child process's maximum resident "
-            "set. Accuracy is against the ground truth of the sampled Figure 9 pipe (radius 1).\n\n"
-            + text + "\n")
+            "# Performance\n\nMade by `" + COMMAND + "` on the development machine "
+            f"({os.cpu_count()} cores). Stage columns are the seconds `reconstruct` reports for each stage; "
+            "*total wall* is the whole `canalsurf reconstruct` process (start-up, reading, meshing, "
+            "writing); the *floor* is one KD-tree build plus a 16-nearest-neighbour query over all points "
+            "on all cores, measured in the same run; *ratio* = total / floor; *peak MB* is the child "
+            "process's maximum resident set. Accuracy is against the ground truth of the sampled Figure 9 "
+            "pipe (radius 1).\n\n" + text + "\n\nTargets (*targets met* above): where a ratio is given it "
+            "is the target, and the seconds only say roughly what it means; a paper-sized cloud has no "
+            "meaningful floor, so there the seconds count.\n\n" + targets_table() + "\n")
     return 0
 
 

@@ -2,21 +2,33 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+import os
 import re
+import shlex
+import signal
+import socket
+import struct
 import sys
+import threading
+import time
 import types
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.interpolate import make_interp_spline
 
 import canalsurf
 from canalsurf import cli, load_model
 from canalsurf.errors import ReconstructionError
-from canalsurf.io import read_points
+from canalsurf.io import read_points, write_points
+from canalsurf.model import CanalModel
+from canalsurf.pipeline import STAGES
+from canalsurf.spine import constant_spline
 from canalsurf.synth import SURFACES, make_tube
 
 #: The cloud most tests reconstruct: the paper's Figure 9 pipe (true radius 1), another seed than the demo.
@@ -36,6 +48,81 @@ def _error_line(err: str) -> str:
 
 def _empty(folder: Path) -> bool:
     return not folder.exists() or not any(folder.iterdir())
+
+
+def _never(*args, **kwargs):
+    raise AssertionError("reconstruction should not start")
+
+
+def _straight_pipe() -> CanalModel:
+    """A hand-made result (straight spine of length 10 along x, radius 1) for tests about the files."""
+    u = np.linspace(0.0, 1.0, 5)
+    spine = make_interp_spline(u, np.column_stack([10 * u, 0 * u, 0 * u]), k=3)
+    return CanalModel("pipe", spine, constant_spline(1.0), False, {"R": 0.5}, {"n_points": 2000})
+
+
+@pytest.fixture
+def instant_pipeline(monkeypatch):
+    """Replace the pipeline by one that reports every stage and returns :func:`_straight_pipe` at once."""
+
+    def reconstruct(points, *, progress=None, **kwargs):
+        for stage in STAGES:
+            progress(stage)
+        return _straight_pipe()
+
+    monkeypatch.setattr("canalsurf.pipeline.reconstruct", reconstruct)
+
+
+@contextlib.contextmanager
+def _deadline(seconds: int):
+    """Fail, instead of hanging, if the block runs longer than ``seconds`` (where SIGALRM exists)."""
+    if not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def expire(signum, frame):
+        raise TimeoutError(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _on_a_terminal(argv: list[str]) -> tuple[int, str]:
+    """Run ``main(argv)`` with stderr on a pseudo-terminal; return the exit code and what it showed."""
+    termios = pytest.importorskip("termios")
+    fcntl = pytest.importorskip("fcntl")
+    master, slave = os.openpty()
+    # 24 rows, 100 columns: tqdm sizes its bar to the terminal's width
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+    received = []
+
+    def drain():  # read while main runs: a full terminal buffer would block the writer
+        while True:
+            try:
+                data = os.read(master, 4096)
+            except OSError:  # EIO: the terminal side is closed
+                return
+            if not data:
+                return
+            received.append(data)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    terminal = os.fdopen(slave, "w", encoding="utf-8", buffering=1)
+    saved, sys.stderr = sys.stderr, terminal
+    try:
+        code = cli.main(argv)
+    finally:
+        sys.stderr = saved
+        terminal.close()
+        reader.join(timeout=5)
+        os.close(master)
+    return code, b"".join(received).decode("utf-8")
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +146,12 @@ def test_help_has_examples(command, capsys):
     assert cli.main([*command, "--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: canalsurf") and "examples:" in out
+    examples = [shlex.split(line.split("#", 1)[0].split(">", 1)[0])  # comments, redirections cut off
+                for line in re.findall(r"^  (canalsurf .*)$", out.split("examples:", 1)[1], re.M)]
+    assert len(examples) >= 2 and all(words[1] == command[0] for words in examples[:2] if command)
+    parser = cli.build_parser()
+    for words in examples:  # every example is a command line that parses
+        parser.parse_args(words[1:])
 
 
 @pytest.mark.parametrize("argv, what", [
@@ -179,8 +272,11 @@ def test_reconstruct(cloud, tmp_path, capsys):
     np.testing.assert_allclose(table, np.column_stack([samples["t"], samples["points"], samples["radius"]]),
                                rtol=1e-15, atol=0)
 
-    mesh = trimesh.load(out / "surface.ply", force="mesh")
-    assert mesh.is_watertight and mesh.volume > 0
+    # process=False: judge the mesh as written, not after trimesh has merged or dropped anything
+    mesh = trimesh.load(out / "surface.ply", force="mesh", process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume > 0  # consistently wound and enclosing a positive volume: facing outward
+    assert mesh.nondegenerate_faces().all() and mesh.area_faces.min() > 1e-3 * mesh.area_faces.mean()
     # a capped tube of radius ~1 around the spine: volume close to pi r^2 L
     length = cli._spine_length(model)
     assert mesh.volume == pytest.approx(np.pi * length, rel=0.05)
@@ -188,7 +284,51 @@ def test_reconstruct(cloud, tmp_path, capsys):
     expected = {"model.json", "surface.ply", "spine.csv"}
     if cli._dxf_available():
         expected.add("spine.dxf")
+        _check_spine_dxf(out / "spine.dxf", json.loads((out / "model.json").read_text()))
     assert {p.name for p in out.iterdir()} == expected  # nothing else (no staging folder)
+
+
+def _check_spine_dxf(path: Path, data: dict) -> None:
+    """spine.dxf holds model.json's spine as one exact SPLINE and the sampled radii on a polyline."""
+    import ezdxf
+
+    msp = ezdxf.readfile(path).modelspace()
+    (spline,) = msp.query("SPLINE")
+    assert spline.dxf.degree == data["spine"]["degree"]
+    np.testing.assert_array_equal(np.array(spline.control_points), data["spine"]["control_points"])
+    np.testing.assert_array_equal(np.array(spline.knots), data["spine"]["knots"])
+    (line,) = msp.query("POLYLINE[layer=='RADIUS']")
+    vertices = list(line.vertices)
+    np.testing.assert_array_equal([list(v.dxf.location) for v in vertices], data["samples"]["points"])
+    np.testing.assert_array_equal([v.get_xdata("CANALSURF")[0].value for v in vertices],
+                                  data["samples"]["radius"])
+
+
+def test_without_ezdxf_spine_dxf_is_skipped_and_said(cloud, tmp_path, capsys, monkeypatch, instant_pipeline):
+    monkeypatch.setitem(sys.modules, "ezdxf", None)  # import fails as if not installed
+    monkeypatch.setattr(cli, "_DXF_AVAILABLE", None)  # forget an earlier answer
+    assert cli.main(["-v", "reconstruct", str(cloud), "-o", str(tmp_path)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "spine.csv", "surface.ply"]
+    assert "ezdxf is not installed: spine.dxf is skipped (pip install 'canalsurf[dxf]')" in \
+        capsys.readouterr().err
+
+
+def test_progress_bar_on_a_terminal(cloud, tmp_path, capsys):
+    code, shown = _on_a_terminal(["reconstruct", str(cloud), "-o", str(tmp_path / "out")])
+    assert code == 0
+    assert f"\r{cloud}:" in shown and f"0/{len(STAGES)}" in shown
+    for stage in STAGES:  # the bar names each stage of the real pipeline as it starts
+        assert f"stage/s, {stage}]" in shown, stage
+    assert shown.endswith("\r") and not shown.rsplit("\r", 2)[-2].strip()  # wiped when done
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("quiet", [False, True], ids=["default", "quiet"])
+def test_quiet_turns_the_progress_bar_off(quiet, cloud, tmp_path, instant_pipeline):
+    argv = ["reconstruct", str(cloud), "-o", str(tmp_path / "out")] + (["-q"] if quiet else [])
+    code, shown = _on_a_terminal(argv)
+    assert code == 0
+    assert (shown == "") if quiet else (f"stage/s, {STAGES[-1]}]" in shown)
 
 
 def test_reconstruct_without_caps_is_open(cloud, tmp_path):
@@ -259,14 +399,77 @@ def _sphere(n=1000):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
+def _ply(path: Path, *, claim: int | None = None, keep_rows: int | None = None) -> Path:
+    """A binary PLY of 200 float64 points whose header claims ``claim`` vertices and which is cut
+    after ``keep_rows`` rows and a piece of the next."""
+    write_points(path, _sphere(200), None)
+    raw = path.read_bytes()
+    if claim is not None:
+        raw = raw.replace(b"element vertex 200\n", f"element vertex {claim}\n".encode())
+    if keep_rows is not None:
+        raw = raw[: raw.index(b"end_header\n") + len(b"end_header\n") + keep_rows * 24 + 7]
+    path.write_bytes(raw)
+    return path
+
+
+def _special(path: Path, make) -> Path:
+    """``make(path)`` creates a socket, pipe or link; skip where the system cannot."""
+    try:
+        make(path)
+    except (AttributeError, NotImplementedError, OSError) as exc:
+        pytest.skip(f"cannot create {path.name} here: {exc}")
+    return path
+
+
+def _socket(path: Path) -> None:
+    with socket.socket(socket.AF_UNIX) as sock:
+        sock.bind(str(path))  # the socket file stays after the socket is closed
+
+
+def _link_to_unreadable(path: Path) -> None:
+    """A link to Linux's /proc/self/mem: a regular file whose first byte nobody can read, not even root
+    (address 0 is never mapped, so reading it fails with EIO)."""
+    target = Path("/proc/self/mem")
+    if not target.is_file():
+        raise NotImplementedError("no /proc/self/mem on this system")
+    path.symlink_to(target)
+
+
+def _text(path: Path, content: str) -> Path:
+    path.write_text(content)
+    return path
+
+
 BAD_INPUTS = {
     # name -> (write the file into the folder and return its path, exit code, words in the message)
     "missing": (lambda d: d / "nothere.ply", 2, "file not found"),
     "empty": (lambda d: (d / "empty.ply").touch() or d / "empty.ply", 2, "empty"),
+    "folder": (lambda d: (d / "scans.ply").mkdir() or d / "scans.ply", 2, "is a folder, not a point file"),
+    "wrong extension": (lambda d: _write_xyz(d / "scan.vtk", _sphere(200)), 2, "unknown point format '.vtk'"),
+    "truncated ply": (lambda d: _ply(d / "cut.ply", keep_rows=120), 2,
+                      "PLY file is truncated (header says 200 vertices, data holds 120)"),
+    "ply claims more": (lambda d: _ply(d / "more.ply", claim=300), 2,
+                        "PLY file is truncated (header says 300 vertices, data holds 200)"),
+    "ply claims fewer": (lambda d: _ply(d / "fewer.ply", claim=100), 2,
+                         "PLY header says 100 vertices but more data follows"),
+    "non-numeric row": (lambda d: _text(d / "row.csv", "x,y,z\n1,2,3\n4,5,6\n7,oops,9\n"), 2,
+                        "line 4 is not numeric ('7,oops,9')"),
     "nan": (lambda d: _write_xyz(d / "nan.xyz", np.vstack([_sphere(200), [[np.nan, 0, 0]]])), 2, "NaN"),
+    "inf": (lambda d: _write_xyz(d / "inf.xyz", np.vstack([_sphere(200), [[0, -np.inf, 0]]])), 2, "NaN or inf"),
     "too few": (lambda d: _write_xyz(d / "few.xyz", _sphere(10)), 2, "10 points"),
+    "identical": (lambda d: _write_xyz(d / "same.xyz", np.ones((200, 3))), 2, "all points are identical"),
+    "line": (lambda d: _write_xyz(d / "line.xyz", np.outer(np.arange(200.0), [1, 2, -3])), 2,
+             "coplanar or collinear"),
     "plane": (lambda d: _write_xyz(d / "plane.xyz", np.c_[np.random.default_rng(1).uniform(size=(500, 2)),
                                                              np.zeros(500)]), 2, "coplanar"),
+    # cannot-be-read cases that hold even for root, who may read any file whatever its permissions
+    "socket": (lambda d: _special(d / "sock.ply", _socket), 2, "is a socket, not a regular file"),
+    "named pipe": (lambda d: _special(d / "pipe.xyz", lambda p: os.mkfifo(p)), 2,
+                   "is a named pipe, not a regular file"),
+    "broken link": (lambda d: _special(d / "link.ply", lambda p: p.symlink_to(d / "gone.ply")), 2,
+                    "gone.ply', which does not exist"),
+    "read error": (lambda d: _special(d / "mem.npy", _link_to_unreadable), 2,
+                   "cannot be read (Input/output error) — check the disk"),
     "not a tube": (lambda d: _write_xyz(d / "sphere.xyz", _sphere()), 1, "not a tube"),
 }
 
@@ -276,7 +479,8 @@ def test_bad_input(case, tmp_path, capsys):
     make, code, words = BAD_INPUTS[case]
     path = make(tmp_path)
     out = tmp_path / "out"
-    assert cli.main(["reconstruct", str(path), "-o", str(out)]) == code
+    with _deadline(30):  # a reader waiting on the named pipe would otherwise hang the suite
+        assert cli.main(["reconstruct", str(path), "-o", str(out)]) == code
     captured = capsys.readouterr()
     line = _error_line(captured.err)
     assert str(path) in line and words in line and " — " in line
@@ -285,10 +489,7 @@ def test_bad_input(case, tmp_path, capsys):
 
 
 def test_output_inside_a_file(cloud, tmp_path, capsys, monkeypatch):
-    def never(*args, **kwargs):
-        raise AssertionError("reconstruction should not start")
-
-    monkeypatch.setattr("canalsurf.pipeline.reconstruct", never)
+    monkeypatch.setattr("canalsurf.pipeline.reconstruct", _never)
     blocker = tmp_path / "file.txt"
     blocker.write_text("x")
     assert cli.main(["reconstruct", str(cloud), "-o", str(blocker / "out")]) == 2
@@ -297,6 +498,47 @@ def test_output_inside_a_file(cloud, tmp_path, capsys, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file.txt"]
     assert cli.main(["demo", "-o", str(blocker)]) == 2
     _error_line(capsys.readouterr().err)
+
+
+def test_output_that_cannot_be_written(cloud, tmp_path, capsys, instant_pipeline):
+    """A real write failure that holds even for root: nothing can be created in Linux's /proc."""
+    proc = Path("/proc")
+    if not (proc / "self").is_dir():
+        pytest.skip("needs Linux's /proc")
+    out = proc / "canalsurf-test" / "out"
+    assert cli.main(["reconstruct", str(cloud), "-o", str(out)]) == 2
+    captured = capsys.readouterr()
+    line = _error_line(captured.err)
+    assert f"{cloud}: {out.parent}: cannot write (" in line
+    assert line.endswith("— choose another output folder or free space")
+    assert captured.out == "" and not out.parent.exists()
+    target = proc / "canalsurf-test.ply"
+    assert cli.main(["synth", "helix", "-o", str(target)]) == 2
+    line = _error_line(capsys.readouterr().err)
+    assert f"{target}: cannot write (" in line and line.endswith("— choose another output path")
+    assert not target.exists()
+
+
+def test_more_neighbours_than_points(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("canalsurf.pipeline.reconstruct", _never)
+    path = _write_xyz(tmp_path / "sparse.xyz", _sphere(60))
+    out = tmp_path / "out"
+    assert cli.main(["reconstruct", str(path), "-o", str(out), "-k", "61"]) == 2
+    assert _error_line(capsys.readouterr().err) == (
+        f"canalsurf: error: {path}: 60 points are fewer than the 61 neighbours -k asks for — give a smaller "
+        "-k or a denser scan")
+    assert not out.exists()
+
+
+def test_mesh_format_without_the_extra_fails_before_work(cloud, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "trimesh", None)  # import fails as if not installed
+    monkeypatch.setattr("canalsurf.pipeline.reconstruct", _never)
+    out = tmp_path / "out"
+    assert cli.main(["reconstruct", str(cloud), "-o", str(out), "--mesh-format", "obj"]) == 2
+    assert _error_line(capsys.readouterr().err) == (
+        "canalsurf: error: writing .obj meshes needs the 'mesh' extra — pip install 'canalsurf[mesh]', "
+        "or use --mesh-format ply")
+    assert not out.exists()
 
 
 def test_failed_write_leaves_nothing(cloud, tmp_path, capsys, monkeypatch):
@@ -408,11 +650,29 @@ def test_paper_without_experiments_module(monkeypatch, tmp_path, capsys):
     assert "paper experiments cannot be loaded" in _error_line(capsys.readouterr().err)
 
 
-@pytest.mark.parametrize("suffix", [".ply", ".xyz", ".npy"])
+#: Seconds a 50 MB file of random bytes may take to be refused (it takes milliseconds: only its first
+#: bytes are looked at), generous for slow machines.
+REFUSE_SECONDS = 5.0
+
+
+#: What a file of random bytes is told, per built-in suffix (.txt and .asc read like .xyz).
+RANDOM_BYTES = {
+    ".ply": "not a PLY file (it does not start with 'ply' and a format line) — re-export the file",
+    ".xyz": "not a text file (it holds non-UTF-8 bytes) — export the points as text",
+    ".csv": "not a text file (it holds non-UTF-8 bytes) — export the points as text",
+    ".npy": "not a NumPy .npy file (it lacks the format's leading bytes) — save an (N, 3)",
+    ".npz": "not a NumPy .npz file (it lacks the format's leading bytes) — save with numpy.savez",
+}
+
+
+@pytest.mark.parametrize("suffix", list(RANDOM_BYTES))
 def test_fifty_megabytes_of_random_bytes(suffix, tmp_path, capsys):
+    what = RANDOM_BYTES[suffix]
     path = tmp_path / f"noise{suffix}"
     path.write_bytes(np.random.default_rng(7).bytes(50 << 20))
     out = tmp_path / "out"
+    start = time.perf_counter()
     assert cli.main(["reconstruct", str(path), "-o", str(out)]) == 2
-    assert _error_line(capsys.readouterr().err).startswith(f"canalsurf: error: {path}: ")
+    assert time.perf_counter() - start < REFUSE_SECONDS
+    assert _error_line(capsys.readouterr().err).startswith(f"canalsurf: error: {path}: {what}")
     assert not out.exists()

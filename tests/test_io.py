@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import pathlib
 import sys
 
 import numpy as np
@@ -524,6 +525,47 @@ def test_unreadable_file_simulated(tmp_path, monkeypatch, cloud):
     monkeypatch.setattr(io, "open", refuse, raising=False)  # shadows the builtin inside canalsurf.io
     with pytest.raises(InputError, match=r"locked\.npy: cannot be read \(permission denied\) — check the file"):
         read_points(path)
+
+
+@pytest.mark.skipif(IS_ROOT, reason=ROOT_REASON)
+def test_file_in_a_folder_without_permission(tmp_path, cloud):
+    folder = tmp_path / "locked"
+    folder.mkdir()
+    np.save(folder / "scan.npy", cloud[0])
+    folder.chmod(0)
+    try:
+        with pytest.raises(InputError, match=r"scan\.npy: cannot be read \(permission denied on a folder above it\)"):
+            read_points(folder / "scan.npy")
+    finally:
+        folder.chmod(0o700)
+
+
+def test_file_in_a_folder_without_permission_simulated(tmp_path, monkeypatch, cloud):
+    """The same branch as above, reachable as root: looking the file up is made to fail."""
+    path = tmp_path / "locked" / "scan.npy"
+
+    def refuse(self, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(pathlib.Path, "stat", refuse)
+    with pytest.raises(InputError, match=r"scan\.npy: cannot be read \(permission denied on a folder above it\) — "
+                                         r"check the folder permissions"):
+        read_points(path)
+
+
+@pytest.mark.parametrize("case", ["link loop", "file as folder"])
+def test_paths_that_cannot_be_looked_up(tmp_path, case):
+    if case == "link loop":
+        path = tmp_path / "loop.ply"
+        path.symlink_to(path)
+        reason = "Too many levels of symbolic links"
+    else:
+        (tmp_path / "scan.ply").write_text("ply\n")
+        path = tmp_path / "scan.ply" / "inner.ply"
+        reason = "Not a directory"
+    with pytest.raises(InputError, match=rf"{path.name}: cannot be read \({reason}\) — check the path") as info:
+        read_points(path)
+    _assert_one_line(info)
 
 
 @pytest.mark.parametrize("suffix", POINT_FORMATS)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import socket
 
 import numpy as np
 import pytest
@@ -159,6 +160,25 @@ def test_corrupted_content_is_refused(tmp_path, damage):
 
 def test_missing_file_is_refused(tmp_path):
     _raises_one_line(tmp_path / "nope.json", r"^.*nope\.json: no such file — check the path$")
+
+
+@pytest.mark.parametrize("case", ["folder", "random bytes", "socket"])
+def test_unreadable_file_is_refused(tmp_path, monkeypatch, case):
+    monkeypatch.chdir(tmp_path)  # a short relative name: socket paths are limited to about 100 bytes
+    path = tmp_path / "model.json"
+    if case == "folder":
+        path.mkdir()
+        reason = "Is a directory"
+    elif case == "random bytes":
+        path.write_bytes(np.random.default_rng(0).bytes(4096))
+        reason = "UnicodeDecodeError"
+    else:
+        if not hasattr(socket, "AF_UNIX"):
+            pytest.skip("no Unix sockets here")
+        with socket.socket(socket.AF_UNIX) as sock:
+            sock.bind("model.json")
+        reason = ".+"  # the system's word for it: ENXIO on Linux
+    _raises_one_line(path, rf"^.*model\.json: cannot read the model \({reason}\) — give a model\.json file$")
 
 
 def test_model_from_dict_names_its_source():

@@ -26,11 +26,17 @@ def _outward_share(estimated, true):
     return float(np.mean(np.einsum("ij,ij->i", estimated, true) > 0))
 
 
+#: Points per surface: 2000 as in the paper, more for the long tubes, which 2000 points sample only a
+#: few around (the pipeline's conditions use the same counts).
+N_POINTS = {"tight-helix": 5000, "trefoil": 5000, "long-thin": 20000}
+
+
 @pytest.mark.parametrize("name", list(synth.SURFACES))
 def test_estimated_normals_match_true_normals(name, angle_deg):
-    tube = synth.make_tube(name, n=2000, rng=SEED)
+    n = N_POINTS.get(name, 2000)
+    tube = synth.make_tube(name, n=n, rng=SEED)
     normals = estimate_normals(tube.points)
-    assert normals.shape == (2000, 3)
+    assert normals.shape == (n, 3)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
     assert _outward_share(normals, tube.normals) >= MIN_SIGN_AGREEMENT
     assert angle_deg(normals, tube.normals).mean() <= MEAN_ANGLE_DEG.get(name, MEAN_ANGLE_DEFAULT_DEG)

@@ -52,11 +52,11 @@ def test_given_normals_are_used():
 
 def test_same_input_gives_identical_model():
     tube = canalsurf.make_tube("fig14-canal", rng=2)
-    a = canalsurf.reconstruct(tube.points).to_dict()
-    b = canalsurf.reconstruct(tube.points.copy()).to_dict()
-    for d in (a, b):
-        d["diagnostics"].pop("seconds")
-    assert json.dumps(a) == json.dumps(b)
+    a = canalsurf.reconstruct(tube.points)
+    b = canalsurf.reconstruct(tube.points.copy())
+    # Timings are kept on the model but left out of model.json, which is then the same to the byte.
+    assert "seconds" in a.diagnostics and "seconds" not in a.to_dict()["diagnostics"]
+    assert json.dumps(a.to_dict()) == json.dumps(b.to_dict())
 
 
 def test_input_is_not_modified():

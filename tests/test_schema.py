@@ -175,9 +175,9 @@ def test_parameters_and_diagnostics_allow_other_keys_and_nulls(saved, validator)
     data = _load(saved["fig9-pipe"])
     data["parameters"]["future_option"] = None
     data["diagnostics"]["not_a_number"] = None
-    data["diagnostics"]["seconds"]["new_stage"] = 0.5
+    data["diagnostics"]["angular_coverage"] = None
     assert validator.is_valid(data)
-    data["diagnostics"]["seconds"]["bad_stage"] = "slow"
+    data["diagnostics"]["angular_coverage"] = "all around"
     assert not validator.is_valid(data)
 
 

@@ -25,7 +25,8 @@ def test_every_surface_samples(name):
     np.testing.assert_allclose(np.linalg.norm(tube.normals, axis=1), 1.0, atol=1e-12)
     assert tube.noise == synth.SURFACES[name][3]
     assert tube.closed == synth.SURFACES[name][2]
-    assert tube.is_pipe == (name.endswith("pipe") or name in ("helix", "torus"))
+    assert tube.is_pipe == ("canal" not in name)
+    assert not tube.outlier.any() and tube.arc == 360.0 and tube.noise_model == "uniform"
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -73,6 +74,66 @@ def test_noise_can_be_set():
     assert synth.make_tube("fig9-pipe", noise=0.2).noise == 0.2
     quiet = synth.make_tube("torus", n=400, noise=0.0, rng=1)
     assert quiet.noise == 0.0
+
+
+# --- real-scan conditions -------------------------------------------------------------------------------
+
+def test_gaussian_noise_has_the_given_standard_deviation(envelope_distance):
+    tube = synth.make_tube("torus", n=4000, noise=0.03, noise_model="gaussian", rng=2)
+    dist, _ = envelope_distance(tube.points, tube.spine, tube.radius, closed=True)
+    assert np.std(dist) == pytest.approx(0.03, rel=0.05)
+    assert np.abs(dist).max() > 0.075  # beyond any uniform +-0.03: the tails are Gaussian
+
+
+def test_outliers_are_marked_and_lie_in_the_bounding_box(envelope_distance):
+    tube = synth.make_tube("elbow", n=2000, outliers=0.05, rng=2)
+    assert tube.outlier.sum() == 100 and tube.points.shape == (2000, 3)
+    surface = tube.points[~tube.outlier]
+    assert (tube.points[tube.outlier] >= surface.min(axis=0)).all()
+    assert (tube.points[tube.outlier] <= surface.max(axis=0)).all()
+    dist, _ = envelope_distance(tube.points, tube.spine, tube.radius, closed=False)
+    assert np.abs(dist[~tube.outlier]).max() <= tube.noise + 1e-5
+    assert np.median(np.abs(dist[tube.outlier])) > 10 * tube.noise
+
+
+@pytest.mark.parametrize("arc", [180.0, 270.0])
+def test_one_sided_scan_sees_one_arc_of_each_cross_section(arc):
+    """Every normal lies within arc / 2 of the viewing side of its own cross-section."""
+    tube = synth.make_tube("fig9-pipe", n=3000, noise=0.0, arc=arc, rng=2)
+    view = synth.view_direction(tube.spine)
+    u = np.linspace(0, 1, 20001)
+    t = u[np.argmin(np.linalg.norm(tube.points[:, None, :] - tube.spine(u[::20])[None], axis=2), axis=1) * 20]
+    tangent = tube.spine.derivative()(t)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    towards = view - (tangent @ view)[:, None] * tangent
+    towards /= np.linalg.norm(towards, axis=1, keepdims=True)
+    across = tube.normals - np.einsum("ij,ij->i", tube.normals, tangent)[:, None] * tangent
+    across /= np.linalg.norm(across, axis=1, keepdims=True)
+    angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", across, towards), -1, 1)))
+    # The nearest of 1001 spine samples tilts the cross-section by a fraction of a degree.
+    assert angle.max() <= arc / 2 + 2 and angle.max() >= arc / 2 - 2
+
+
+def test_density_falls_along_the_spine_by_the_ratio():
+    tube = synth.make_tube("canal-x3", n=6000, noise=0.0, density_ratio=10, rng=2)
+    u = np.linspace(0, 1, 2001)
+    t = u[np.argmin(np.linalg.norm(tube.points[:, None, :] - tube.spine(u)[None], axis=2), axis=1)]
+    per_area = np.histogram(t, bins=[0, 0.1, 0.9, 1.0])[0]
+    # Density at each end relative to the area there (the canal's radius grows 3x: area per unit t too).
+    area = [np.mean(tube.radius(np.linspace(a, b, 50))) * (b - a) for a, b in ((0, 0.1), (0.9, 1.0))]
+    ratio = (per_area[0] / area[0]) / (per_area[2] / area[1])
+    assert 10 ** 0.9 / 1.4 <= ratio <= 10 ** 0.9 * 1.4  # exp(-t ln 10) between the bins' centres
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"arc": 0}, r"^arc must be in \(0, 360\] degrees, got 0"),
+    ({"density_ratio": 0.5}, r"^density_ratio must be >= 1, got 0\.5$"),
+    ({"outliers": 1.0}, r"^outliers must be a share in \[0, 1\), got 1\.0$"),
+    ({"noise_model": "pink"}, r"^noise_model must be one of"),
+])
+def test_bad_condition_options(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        synth.make_tube("torus", n=100, **kwargs)
 
 
 # --- the paper's data ---------------------------------------------------------------------------------
@@ -133,7 +194,8 @@ def test_helix_spine():
 
 def test_unknown_name():
     with pytest.raises(InputError, match=r"^surface name must be one of 'fig9-pipe', 'fig15-pipe', "
-                                         r"'fig14-canal', 'fig16-canal', 'helix', 'torus', got 'fig99'$"):
+                                         r"'fig14-canal', 'fig16-canal', 'helix', 'torus', 'trefoil', 'elbow', "
+                                         r"'tight-helix', 'long-thin', 'canal-x3', got 'fig99'$"):
         synth.make_tube("fig99")
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import importlib.util
 import json
 import logging
 import math
@@ -241,7 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n"
                "  canalsurf synth --list\n"
                "  canalsurf synth fig9-pipe -o pipe.ply\n"
-               "  canalsurf synth torus -o torus.xyz --n 5000 --noise 0 --seed 3 --normals")
+               "  canalsurf synth torus -o torus.xyz --n 5000 --noise 0 --seed 3 --normals\n"
+               "  canalsurf synth elbow -o scan.ply --arc 200 --outliers 0.05   # as a scanner sees it")
     p.add_argument("name", nargs="?", metavar="NAME", choices=tuple(SURFACES), help="surface to sample")
     p.add_argument("-o", "--output", metavar="FILE", type=Path, help="point file to write")
     p.add_argument("--list", action="store_true", help="list the surfaces and exit")
@@ -253,6 +255,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampling", choices=("area", "parameter"), default="area",
                    help="uniform by surface area (default, like a scanner) or uniform in the surface "
                         "parameters (s, t), as the paper most likely sampled")
+    p.add_argument("--gaussian", action="store_true",
+                   help="Gaussian offsets with standard deviation --noise instead of uniform ones")
+    p.add_argument("--arc", type=_number(float, low=0, high=360, strict=True, what="degrees in (0, 360]"), default=360.0,
+                   help="degrees of each cross-section the scan sees, facing one side (default 360; "
+                        "180-270 for a one-sided scan)")
+    p.add_argument("--outliers", type=_number(float, low=0, high=0.99, what="a share in [0, 0.99]"), default=0.0,
+                   help="share of the points that are stray, uniform in the bounding box (default 0)")
+    p.add_argument("--density-ratio", type=_number(float, low=1, what="a number >= 1"), default=1.0,
+                   help="density falls by this factor from one end of the spine to the other (default 1)")
     p.add_argument("--normals", action="store_true", help="also write the true normals (nx, ny, nz)")
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_synth)
@@ -299,9 +310,20 @@ class _Console:
 
     def error(self, message: str) -> None:
         """The one stderr line of an expected failure."""
-        from tqdm import tqdm
+        _write_line(f"{PROG}: error: {_one_line(message)}", self.err)
 
-        tqdm.write(f"{PROG}: error: {_one_line(message)}", file=self.err)
+
+def _write_line(text: str, stream) -> None:
+    """Write one line to ``stream`` without breaking a progress bar being drawn there.
+
+    A bar can only be on screen once tqdm has been imported; until then tqdm is not loaded just for
+    a message.
+    """
+    tqdm = sys.modules.get("tqdm")
+    if tqdm is None:
+        print(text, file=stream)
+    else:
+        tqdm.tqdm.write(text, file=stream)
 
 
 def _isatty(stream) -> bool:
@@ -319,10 +341,8 @@ class _TqdmHandler(logging.StreamHandler):
     """Log records to stderr without breaking a progress bar that is being drawn."""
 
     def emit(self, record):
-        from tqdm import tqdm
-
         try:
-            tqdm.write(self.format(record), file=self.stream)
+            _write_line(self.format(record), self.stream)
         except Exception:  # noqa: BLE001 -- logging's own convention
             self.handleError(record)
 
@@ -365,18 +385,25 @@ def _warnings_to_log():
 
 
 class _StageBar:
-    """A tqdm bar over the pipeline's stages; ``bar(stage)`` is reconstruct's ``progress`` callback."""
+    """A tqdm bar over the pipeline's stages; ``bar(stage)`` is reconstruct's ``progress`` callback.
+
+    Without a bar to show (``-q``, or stderr not a terminal) tqdm is not even imported.
+    """
 
     def __init__(self, label: str, console: _Console):
-        from tqdm import tqdm
-
         from .pipeline import STAGES
 
         self.stages = STAGES
-        self.bar = tqdm(total=len(STAGES), desc=label, unit="stage", file=console.err, leave=False,
-                        disable=not console.progress_enabled, dynamic_ncols=True)
+        self.bar = None
+        if console.progress_enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=len(STAGES), desc=label, unit="stage", file=console.err, leave=False,
+                            dynamic_ncols=True)
 
     def __call__(self, stage: str) -> None:
+        if self.bar is None:
+            return
         done = self.stages.index(stage) if stage in self.stages else self.bar.n
         self.bar.update(done - self.bar.n)
         self.bar.set_postfix_str(stage)
@@ -385,7 +412,8 @@ class _StageBar:
         return self
 
     def __exit__(self, *exc):
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -481,14 +509,14 @@ _DXF_AVAILABLE: bool | None = None
 
 
 def _dxf_available() -> bool:
-    """ezdxf can be imported (checked once per process)."""
+    """ezdxf is installed (checked once per process, without importing it: that takes longer than
+    a small reconstruction, and happens only when spine.dxf is written)."""
     global _DXF_AVAILABLE
     if _DXF_AVAILABLE is None:
-        try:
-            importlib.import_module("ezdxf")
-            _DXF_AVAILABLE = True
-        except ImportError:
-            _DXF_AVAILABLE = False
+        if "ezdxf" in sys.modules:  # imported already, or blocked by a None entry
+            _DXF_AVAILABLE = sys.modules["ezdxf"] is not None
+        else:
+            _DXF_AVAILABLE = importlib.util.find_spec("ezdxf") is not None
     return _DXF_AVAILABLE
 
 
@@ -567,7 +595,8 @@ def _summary(label, folder, model, files) -> dict:
     data = model.to_dict()
     return {"input": label, "outdir": str(folder), "kind": model.kind, "closed": bool(model.closed),
             "radius": model.mean_radius, "parameters": data["parameters"],
-            "diagnostics": data["diagnostics"], "files": [str(f) for f in files]}
+            "diagnostics": {**data["diagnostics"], "seconds": model.diagnostics.get("seconds", {})},
+            "files": [str(f) for f in files]}
 
 
 def _folder_names(inputs: list[Path]) -> list[str]:
@@ -620,6 +649,10 @@ def _cmd_reconstruct(args, console: _Console) -> int:
             points, normals = read_points(path)
             if args.normals == "estimate":
                 normals = None
+            if args.k is not None and args.k > len(points):
+                # checked here, not left to reconstruct, so the message can name the option to change
+                raise InputError(f"{len(points)} points are fewer than the {args.k} neighbours -k asks "
+                                 "for — give a smaller -k or a denser scan")
             log.info("%s: %d points, normals %s", path, len(points),
                      "from the file" if normals is not None else "estimated")
             model = _reconstruct_cloud(points, normals, str(path), options, console)
@@ -707,7 +740,9 @@ def _cmd_synth(args, console: _Console) -> int:
     if path.suffix.lower() not in POINT_WRITE_FORMATS:
         raise InputError(f"{path}: cannot write points as {path.suffix or '(no suffix)'!r} — "
                          f"use one of {', '.join(POINT_WRITE_FORMATS)}")
-    tube = make_tube(args.name, n=args.n, noise=args.noise, rng=args.seed, sampling=args.sampling)
+    tube = make_tube(args.name, n=args.n, noise=args.noise, rng=args.seed, sampling=args.sampling,
+                     noise_model="gaussian" if args.gaussian else "uniform", arc=args.arc,
+                     outliers=args.outliers, density_ratio=args.density_ratio)
     created = _make_dirs(path.parent)
     try:
         write_points(path, tube.points, tube.normals if args.normals else None)

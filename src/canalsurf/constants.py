@@ -49,6 +49,9 @@ MLS_VOXEL_PER_H = 0.25
 ORDER_VOXEL_PER_H = 0.5
 #: Spanning-tree links longer than this many median links are cut before ordering (stray points).
 ORDER_CUT_LINKS = 5.0
+#: ... but never links shorter than this many voxels (3 H): a thin set only a few points per radius
+#: long (a long, thin tube) has gaps of a radius that do not break the curve.
+ORDER_CUT_SPACINGS = 6.0
 #: Interior knot spacing of the spine spline, in r0 (the smoothing itself is chosen by GCV in the
 #: refinement): spine features of a regular tube are no sharper
 #: than its radius (r * curvature < 1).
@@ -66,6 +69,10 @@ SMOOTHING = 1e-3
 REFINE_ITERATIONS = 25
 #: Residuals beyond this many robust standard deviations are treated as outliers.
 OUTLIER_SIGMAS = 3.0
+#: ... but the standard deviation is taken as at least this share of the radius: the residuals of a
+#: nearly noise-free scan are the fit's own small misfit, not noise, and cutting at three times that
+#: called real points near the ends stray (spine ends off by up to 0.7 r below 0.4 % noise).
+MIN_SIGMA_PER_RADIUS = 0.01
 
 # --- pipe or canal --------------------------------------------------------------------------------
 #: A radius function is kept (kind "canal") only if it varies by more than this share of its mean
@@ -80,9 +87,19 @@ MU_CANAL_AUTO = 0.98
 #: points: with 16-neighbour patches the normals and the curvature radius get noisier as the density
 #: grows (NOTES), and 5,000 points already define a tube's spine for the final fit.
 MAX_SHRINK_POINTS = 5_000
+#: ... unless that leaves points farther apart than this share of r0 (a long, thin tube: a fixed number
+#: of points spread over 300 radii of length is only a few points around): then the subset grows to
+#: reach it, up to MAX_FIT_POINTS.  A 5,000-point subset of the Figure 9 pipe is spaced 0.18 r.
+MAX_SPACING_PER_RADIUS = 0.3
 #: ... and fit spine and radius to at most this many (a superset of the former).  See docs/performance.md.
 MAX_FIT_POINTS = 30_000
 #: The RMS residual of a larger scan is estimated on a seeded sample of this many points.
 MAX_RESIDUAL_POINTS = 200_000
+#: A scan whose median angular coverage around the spine is below this many degrees is one-sided
+#: (a full scan of 100 points per stretch reads about 340; see metrics.angular_coverage).
+ONE_SIDED_DEGREES = 300.0
+#: More stray points than this share (residual beyond OUTLIER_SIGMAS) means the input is not one tube
+#: (real scans have a few percent of stray points).
+MAX_STRAY_SHARE = 0.2
 #: Fewer points than this share reaching the spine means the shape is not a tube.
 MIN_KEPT_SHARE = 0.3

@@ -29,6 +29,7 @@ import json
 import os
 import pathlib
 import secrets
+import stat
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -132,10 +133,27 @@ def _split_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> tuple[np.n
 
 def _check_readable(path: pathlib.Path) -> None:
     """Fail early, with a plain message, on the file-system problems every format shares."""
-    if not path.exists():
-        raise InputError(f"{path}: file not found — check the path")
-    if path.is_dir():
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        if path.is_symlink():
+            raise InputError(f"{path}: is a link to {os.readlink(path)!r}, which does not exist — "
+                             "check the link") from None
+        raise InputError(f"{path}: file not found — check the path") from None
+    except PermissionError:
+        raise InputError(
+            f"{path}: cannot be read (permission denied on a folder above it) — check the folder "
+            "permissions"
+        ) from None
+    except OSError as exc:  # a link loop, a file used as a folder, a name too long
+        raise InputError(f"{path}: cannot be read ({exc.strerror or _one_line(exc)}) — check the path") from None
+    if stat.S_ISDIR(mode):
         raise InputError(f"{path}: is a folder, not a point file — give a file such as scan.ply")
+    if not stat.S_ISREG(mode):
+        # Opening a named pipe blocks until something writes to it, and the readers need a file they
+        # can read more than once (sniffing, then parsing; plyfile memory-maps binary data).
+        kind = "a named pipe" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "a device"
+        raise InputError(f"{path}: is {kind}, not a regular file — save the points to a file first")
     try:
         with open(path, "rb") as fh:
             first = fh.read(1)
@@ -144,7 +162,10 @@ def _check_readable(path: pathlib.Path) -> None:
             f"{path}: cannot be read (permission denied) — check the file permissions"
         ) from None
     except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror or _one_line(exc)})") from None
+        raise InputError(
+            f"{path}: cannot be read ({exc.strerror or _one_line(exc)}) — check the disk, or copy the "
+            "file to a local folder and try again"
+        ) from None
     if not first:
         raise InputError(f"{path}: file is empty — re-export the point cloud")
 
@@ -466,8 +487,9 @@ def read_points(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     Raises
     ------
     InputError
-        The suffix is unknown, the file is missing, empty, unreadable or malformed, or the optional
-        library for the format is not installed (the message names the extra to install).
+        The suffix is unknown, the file is missing, not a regular file (a folder, pipe or socket),
+        empty, unreadable or malformed, or the optional library for the format is not installed (the
+        message names the extra to install).
 
     Notes
     -----
@@ -588,19 +610,25 @@ def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _write_mesh_ply(path: pathlib.Path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    import plyfile
-
-    vertex = np.empty(len(vertices), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
-    vertex["x"], vertex["y"], vertex["z"] = vertices.T
-    face = np.empty(len(faces), dtype=[("vertex_indices", "<i4", (3,))])
-    face["vertex_indices"] = faces
-    elements = [
-        plyfile.PlyElement.describe(vertex, "vertex"),
+    # Binary PLY is a text header and the packed rows; numpy writes the rows in one go, where
+    # plyfile walks the faces (a list property) one by one.
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment written by canalsurf\n"
+        f"element vertex {len(vertices)}\nproperty double x\nproperty double y\nproperty double z\n"
         # uint8 list length: the convention every mesh tool reads
-        plyfile.PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"}),
-    ]
-    data = plyfile.PlyData(elements, text=False, byte_order="<", comments=["written by canalsurf"])
-    atomic_write(path, lambda tmp: data.write(str(tmp)))
+        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    face = np.empty(len(faces), dtype=[("count", "u1"), ("vertex_indices", "<i4", (3,))])
+    face["count"] = 3
+    face["vertex_indices"] = faces
+
+    def write(tmp: pathlib.Path) -> None:
+        with open(tmp, "wb") as fh:
+            fh.write(header.encode("ascii"))
+            fh.write(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
+            fh.write(face.tobytes())
+
+    atomic_write(path, write)
 
 
 def _write_mesh_trimesh(path: pathlib.Path, vertices: np.ndarray, faces: np.ndarray) -> None:

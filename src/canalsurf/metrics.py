@@ -7,6 +7,8 @@
   truth).  It mixes position error with parameterisation drift, so it is much larger.
 * :func:`radius_error` -- radius difference at corresponding spine points (nearest reconstructed spine
   point to each true spine point).
+* :func:`angular_coverage` -- how much of the circumference the scan saw around each stretch of the
+  spine (360 degrees all around; 180 - 270 for a scan from one side).
 """
 
 from __future__ import annotations
@@ -16,10 +18,57 @@ from scipy.spatial import cKDTree
 
 from .spine import sample_arclength
 
-__all__ = ["closest_point_distance", "paper_distance", "radius_error", "compare"]
+__all__ = ["closest_point_distance", "paper_distance", "radius_error", "compare", "angular_coverage"]
 
 #: Samples per curve for the distance measures (dense enough that sampling error is < 1e-4 length).
 N_DENSE = 20000
+#: Points per stretch of spine for the angular coverage: with 100 points spread all around, the largest
+#: angular gap is about 2 pi ln(100) / 100, i.e. a full scan reads about 340 degrees.
+COVERAGE_POINTS = 100
+
+
+def angular_coverage(points: np.ndarray, spine, t: np.ndarray) -> np.ndarray:
+    """Degrees of the circumference covered by the points around each stretch of the spine.
+
+    The spine is cut into stretches of about ``COVERAGE_POINTS`` points each; in each, the points'
+    directions from their footpoints ``C(t_i)`` are taken as angles around the stretch's mid tangent,
+    and the coverage is 360 degrees less the widest empty angle.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+    spine : callable
+        C(t) on [0, 1] (a BSpline).
+    t : ndarray, shape (N,)
+        Footpoint parameter of each point.
+
+    Returns
+    -------
+    ndarray
+        Coverage in degrees per stretch, along the spine (empty when there are too few points).
+    """
+    n_bins = len(points) // COVERAGE_POINTS
+    if n_bins == 0:
+        return np.empty(0)
+    # Stretches of equal point count, so each has enough points whatever the density.
+    order = np.argsort(t, kind="stable")
+    bins = np.empty(len(t), int)
+    bins[order] = np.arange(len(t)) * n_bins // len(t)
+    mid = np.array([np.median(t[bins == b]) for b in range(n_bins)])
+    tangent = spine.derivative()(mid)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    helper = np.where(np.abs(tangent[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    e1 = np.cross(tangent, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(tangent, e1)
+    d = points - spine(t)
+    angle = np.arctan2(np.einsum("ij,ij->i", d, e2[bins]), np.einsum("ij,ij->i", d, e1[bins]))
+    cover = np.empty(n_bins)
+    for b in range(n_bins):
+        a = np.sort(angle[bins == b])
+        widest = np.max(np.diff(np.concatenate([a, [a[0] + 2 * np.pi]])))
+        cover[b] = 360.0 - np.degrees(widest)
+    return cover
 
 
 def closest_point_distance(a, b, n: int = N_DENSE) -> dict:

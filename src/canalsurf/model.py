@@ -43,7 +43,8 @@ class CanalModel:
     parameters : dict
         Paper parameters actually used (R, delta, mu, tau, H, k, ...), in the input's units.
     diagnostics : dict
-        n_points, iterations, break_count, stop_rule, rms_residual, seconds per stage, ...
+        n_points, iterations, break_count, stop_rule, rms_residual, angular_coverage, seconds per
+        stage, ...  (``model.json`` leaves out the seconds, so the same input gives the same file.)
     stages : dict, optional
         Intermediate clouds (``normals``, ``shrunk``, ``thin``) for figures; not saved.
     """
@@ -73,7 +74,7 @@ class CanalModel:
         return float(np.mean(self.sample()[1]))
 
     def to_dict(self) -> dict:
-        """The ``model.json`` content (plain JSON types)."""
+        """The ``model.json`` content (plain JSON types); timings are left out, as they vary by run."""
         t, pts = sample_arclength(self.spine, N_SAMPLES)
         if self.kind == "pipe":
             radius = {"constant": float(self.radius.c[0])}
@@ -89,7 +90,7 @@ class CanalModel:
             "radius": radius,
             "samples": {"t": _floats(t), "points": _floats(pts), "radius": _floats(self.radius(t))},
             "parameters": _plain(self.parameters),
-            "diagnostics": _plain(self.diagnostics),
+            "diagnostics": _plain({k: v for k, v in self.diagnostics.items() if k != "seconds"}),
         }
 
     def save(self, path) -> None:
@@ -159,8 +160,9 @@ def load_model(path) -> CanalModel:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{path}: no such file — check the path") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the model ({exc.__class__.__name__}) — "
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc.__class__.__name__
+        raise InputError(f"{path}: cannot read the model ({reason}) — "
                          "give a model.json file") from None
     try:
         data = json.loads(text)

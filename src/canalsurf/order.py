@@ -2,9 +2,10 @@
 
 The paper links closest points recursively; that walks through stray points and stops at gaps.
 Here the thin set is averaged on a voxel grid, its k-nearest-neighbour graph reduced to a minimum
-spanning tree, links much longer than the typical link cut (stray points), and the longest path of
-the heaviest remaining tree (its diameter) taken as the curve.  The curve is closed when its two
-ends are as close as a typical link: the tree had to break the loop somewhere.
+spanning tree, links much longer than both the typical link and the voxel size cut (stray points),
+and the longest path of the heaviest remaining tree (its diameter) taken as the curve.  The curve is
+closed when its two ends are no farther apart than a link that is kept: the tree had to break the
+loop somewhere.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from .constants import ORDER_CUT_LINKS
+from .constants import ORDER_CUT_LINKS, ORDER_CUT_SPACINGS
 from .errors import ReconstructionError
 from .thin import voxel_average
 
@@ -86,7 +87,9 @@ def order_curve(points: np.ndarray, *, spacing: float) -> OrderedCurve:
     graph = coo_matrix((d[ok], (rows[ok], cols[ok])), shape=(len(nodes),) * 2).tocsr()
     tree = minimum_spanning_tree(graph.maximum(graph.T)).tocoo()
     link = float(np.median(tree.data))
-    keep = tree.data <= ORDER_CUT_LINKS * link
+    # A sparse thin set (a long, thin tube) has gaps of a few voxels that are no break in the curve.
+    cut = max(ORDER_CUT_LINKS * link, ORDER_CUT_SPACINGS * spacing)
+    keep = tree.data <= cut
     tree = coo_matrix((tree.data[keep], (tree.row[keep], tree.col[keep])), shape=tree.shape).tocsr()
 
     n_parts, label = connected_components(tree, directed=False)
@@ -107,5 +110,5 @@ def order_curve(points: np.ndarray, *, spacing: float) -> OrderedCurve:
     weights = np.bincount(near, mass[members], len(path))
 
     gap = float(np.linalg.norm(nodes[path[0]] - nodes[path[-1]]))
-    closed = gap <= ORDER_CUT_LINKS * link and len(path) >= MIN_LOOP_LINKS
+    closed = gap <= cut and len(path) >= MIN_LOOP_LINKS
     return OrderedCurve(nodes[path], weights, closed, link)

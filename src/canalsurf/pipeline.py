@@ -18,11 +18,12 @@ from scipy.spatial import cKDTree
 from . import constants as C
 from ._validate import as_normals, as_points, choice, in_range, positive
 from .errors import InputError, ReconstructionError
+from .metrics import angular_coverage
 from .model import CanalModel
 from .normals import estimate_normals
 from .order import order_curve
 from .radius import curvature_radius, pipe_radius, prefer_canal
-from .refine import footpoints, refine as refine_fit, robust_sigma
+from .refine import footpoints, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import shrink
 from .spine import constant_spline, pspline_fit
 from .thin import mls_thin
@@ -133,10 +134,10 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
 
     given = None if normals is None else as_normals(normals, len(pts))
     # A large scan is worked on through seeded random subsets (they keep its density pattern): the
-    # paper's stages see at most MAX_SHRINK_POINTS -- k-nearest-neighbour normals and curvature get
-    # noisier, not better, as the density grows -- and the final fit at most MAX_FIT_POINTS, a subset of
-    # the same draw.  At most MAX_RESIDUAL_POINTS of them are measured against the result.
-    all_pts = pts
+    # paper's stages see MAX_SHRINK_POINTS (more for a long, thin tube) -- k-nearest-neighbour normals
+    # and curvature get noisier, not better, as the density grows -- and the final fit at most
+    # MAX_FIT_POINTS, a superset from the same draw.  At most MAX_RESIDUAL_POINTS of them are measured against the result.
+    all_pts, all_given = pts, given
     draw = np.random.default_rng(0).permutation(len(pts)) if len(pts) > C.MAX_SHRINK_POINTS else None
     fit_pts = all_pts if draw is None else all_pts[np.sort(draw[: C.MAX_FIT_POINTS])]
     if draw is not None:
@@ -145,16 +146,29 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         given = None if given is None else given[pick]
 
     with timer("normals"):
-        tree = cKDTree(pts)
-        nrm = estimate_normals(pts, k=k, tree=tree) if given is None else given
-        r0 = curvature_radius(pts, nrm, tree=tree)
+        for attempt in range(2):
+            tree = cKDTree(pts)
+            nrm = estimate_normals(pts, k=k, tree=tree) if given is None else given
+            r0 = curvature_radius(pts, nrm, tree=tree)
+            dk = tree.query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)), workers=-1)[0][:, -1]
+            # Mean area per point is pi d_k^2 / k for the k-th neighbour distance d_k.
+            area_per_point = np.pi * np.mean(dk**2) / C.NORMAL_NEIGHBOURS
+            if draw is None or attempt or not np.isfinite(r0):
+                break
+            # A long, thin tube spreads a fixed-size subset too thinly around its circumference: take
+            # more of the draw (once) so the subset is as dense, relative to the radius, as a usual one.
+            wanted = area_per_point / (C.MAX_SPACING_PER_RADIUS * r0) ** 2 * len(pts)
+            grown = int(min(wanted, C.MAX_FIT_POINTS, len(all_pts)))
+            if grown <= len(pts):
+                break
+            pick = np.sort(draw[:grown])
+            pts = all_pts[pick]
+            given = None if all_given is None else all_given[pick]
     if not np.isfinite(r0) or r0 > 10:
         raise ReconstructionError("the surface is flat (no curvature around a spine) — "
                                   "the input is not a tube")
-    # Spacing of the collapsed cloud: all points on a spine of length area / (2 pi r0), the area
-    # being n times the mean area per point (pi d_k^2 / k for the k-th neighbour distance d_k).
-    dk = tree.query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)), workers=-1)[0][:, -1]
-    collapsed = np.pi * np.mean(dk**2) / C.NORMAL_NEIGHBOURS / (2 * np.pi * r0)
+    # Spacing of the collapsed cloud: all points on a spine of length area / (2 pi r0).
+    collapsed = area_per_point / (2 * np.pi * r0)
     algo = "pipe" if kind == "pipe" else "canal"
     p = {
         "R": R / scale if R else max(C.R_PER_RADIUS * r0, C.R_PER_COLLAPSED_SPACING * collapsed),
@@ -210,13 +224,13 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
             if kind == "auto":
                 # Both fits scored on all points with the same outlier cut: a fit that went wrong
                 # must not look good by calling most points outliers.
-                cut = C.OUTLIER_SIGMAS * robust_sigma(fits["canal"].residual)
+                cut = outlier_cut(fits["canal"].residual, r0)
                 rss = {name: float(np.minimum(f.residual**2, cut**2).sum()) for name, f in fits.items()}
                 samples = fits["canal"].radius(np.linspace(0, 1, 200))
                 kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(fit_pts), rseg + 2,
                                                samples) else "pipe"
             fit = fits[kind]
-            spine, radius_fn, residual = fit.spine, fit.radius, fit.residual
+            spine, radius_fn, fit_t, residual = fit.spine, fit.radius, fit.t, fit.residual
         else:
             if kind == "auto":
                 rss_pipe = float(((r_i - eq6) ** 2).sum())
@@ -225,7 +239,12 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                                                radius_fn(np.linspace(0, 1, 200))) else "pipe"
             if kind == "pipe":
                 radius_fn = constant_spline(eq6)
-            residual = footpoints(fit_pts, spine, radius_fn, closed=curve.closed)[1]
+            fit_t, residual = footpoints(fit_pts, spine, radius_fn, closed=curve.closed)
+
+    # How much of the circumference the scan saw (full scans read about 340 degrees or more).
+    near = np.abs(residual - np.median(residual)) <= outlier_cut(residual, r0)
+    coverage = angular_coverage(fit_pts[near], spine, fit_t[near])
+    coverage = float(np.median(coverage)) if len(coverage) else float("nan")
 
     with timer("residual"):
         if len(all_pts) > len(fit_pts):
@@ -234,11 +253,20 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
             measured = all_pts if draw is None else all_pts[np.sort(draw[: C.MAX_RESIDUAL_POINTS])]
             residual = footpoints(measured, spine, radius_fn, closed=curve.closed)[1]
     rms = float(np.sqrt(np.mean(residual**2)))
+    # Whether the points form a tube is judged on the points near the surface: stray points (a few
+    # percent in real scans) are far off by nature and must not make a good tube look like none.
+    sigma = robust_sigma(residual)
+    stray = np.abs(residual - np.median(residual)) > outlier_cut(residual, r0)
+    inlier_rms = float(np.sqrt(np.mean(residual[~stray] ** 2))) if (~stray).any() else np.inf
     mean_r = float(np.mean(radius_fn(np.linspace(0, 1, 200))))
-    if not mean_r > 0 or rms > MAX_RELATIVE_RESIDUAL * mean_r:
+    if not mean_r > 0 or inlier_rms > MAX_RELATIVE_RESIDUAL * mean_r:
         raise ReconstructionError(
             f"the points do not lie on a tube: RMS distance from the best tube is "
-            f"{rms / max(mean_r, 1e-300):.0%} of its radius — check the input is a single pipe or canal")
+            f"{inlier_rms / max(mean_r, 1e-300):.0%} of its radius — check the input is a single pipe or canal")
+    if stray.mean() > C.MAX_STRAY_SHARE:
+        raise ReconstructionError(
+            f"{stray.mean():.0%} of the points lie far off the best tube — the input is not a single "
+            "pipe or canal; crop it to one tube")
 
     # Back to the input's units and placement.
     spine = BSpline(spine.t, spine.c * scale + origin, spine.k)
@@ -251,8 +279,9 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         "n_residual_points": len(residual),
         "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]),
         "stop_rule": sr.stop_rule, "points_reached_spine": int(len(kept)), "closed": bool(curve.closed),
-        "eq6_radius": eq6 * scale, "rms_residual": rms * scale,
-        "noise_sigma": robust_sigma(residual) * scale, "seconds": dict(timer),
+        "eq6_radius": eq6 * scale, "rms_residual": rms * scale, "inlier_rms_residual": inlier_rms * scale,
+        "stray_share": float(stray.mean()), "noise_sigma": sigma * scale, "angular_coverage": coverage,
+        "one_sided": bool(coverage < C.ONE_SIDED_DEGREES), "seconds": dict(timer),
     }
     stages = {"normals": nrm, "shrunk": sr.points[kept] * scale + origin, "thin": thin * scale + origin,
               "break_counts": sr.break_counts}

@@ -18,37 +18,54 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 from scipy.interpolate import BSpline
 from scipy.linalg import eigh
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from .constants import OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
-from .spine import arclength_reparametrize, constant_spline, curve_length, design_matrix, n_coefficients, penalty
+from .constants import MIN_SIGMA_PER_RADIUS, OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
+from .spine import (arclength_reparametrize, constant_spline, curve_length, local_basis, n_coefficients,
+                    penalty)
 
-__all__ = ["footpoints", "refine", "RefineResult", "robust_sigma"]
+__all__ = ["footpoints", "refine", "RefineResult", "robust_sigma", "outlier_cut"]
 
-#: Most Newton steps of the footpoint search, and the parameter change that counts as converged.
+#: Most Newton steps of the footpoint search, and the parameter change that counts as converged:
+#: Newton converges quadratically, so after a step this small the parameter is exact to ~1e-12.
 FOOTPOINT_NEWTON_STEPS = 30
-FOOTPOINT_TOL = 1e-10
+FOOTPOINT_TOL = 1e-7
 #: Penalty weights tried by generalised cross-validation, relative to the fixed floor SMOOTHING * n / m.
 GCV_GRID = 10.0 ** np.arange(0.0, 6.5, 0.5)
 #: Gaps averaged for the local footpoint spacing at an end.
 END_GAPS = 8
+#: ... and a run of them more than this many times as long as the runs inside it is stray points.
+END_SPARSE = 2.0
 #: The fit has converged when a pass's relative cost reduction changes by less than this from the
 #: last pass and neither end moves by more than ``CONVERGED_END`` of the reach.
 CONVERGED_GAIN = 1e-4
 CONVERGED_END = 0.01
+#: A pass that repeats one of the last this many passes (within the tolerances above) ends the fit.
+CYCLE_PASSES = 8
+#: A cloud of more than SUBSET_FACTOR x SUBSET_POINTS points is first fitted through a seeded subset
+#: of SUBSET_POINTS: as many as the paper's stages use (MAX_SHRINK_POINTS), plenty to place spine and
+#: ends to within the noise, so that the passes on all points only polish.
+SUBSET_POINTS = 5_000
+SUBSET_FACTOR = 2
 #: Levenberg-Marquardt damping factors tried in turn until the cost falls.
 LM_DAMPING = (1e-3, 1e-1, 1.0, 10.0, 100.0)
 #: Clouds at least this large query their KD-trees on all cores.
 PARALLEL_MIN_POINTS = 50_000
-#: Samples of the spine the footpoint search starts from; on a canal a coarser set, of which the
-#: nearest ``FOOTPOINT_CANDIDATES`` are tried (Newton refines the start either way).
+#: Samples of the spine the footpoint search starts from; on a canal a coarser set, searched
+#: exhaustively for the least ``|P - C| - r`` (Newton refines the start either way).
 FOOTPOINT_SAMPLES = 1024
 FOOTPOINT_COARSE = 256
-FOOTPOINT_CANDIDATES = 64
+#: The canal search bounds runs of this many consecutive samples by a sphere, so that a point
+#: computes exact distances only to the few runs that can hold its best sample.
+FOOTPOINT_RUN = 8
+#: Points per batch of the canal search: bounds its scratch memory (about 40 MB).
+FOOTPOINT_BATCH = 1 << 16
+#: A radius whose samples spread by less than this share of its size is a constant one that
+#: rounding made uneven (a pipe, searched by its nearest centre).
+PIPE_SPREAD = 1e-12
 
 
 def _workers(points: np.ndarray) -> int:
@@ -61,8 +78,78 @@ def robust_sigma(residual: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(residual - np.median(residual))))
 
 
-def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *,
-               closed: bool) -> tuple[np.ndarray, np.ndarray]:
+def _envelope_start(points: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Index of the sample minimising ``|P - C_j| - r_j`` for each point, exactly over all samples.
+
+    Branch and bound: the nearest centre gives an upper bound ``u`` on each point's minimum, and a
+    run of samples inside a sphere (mid, rho) with largest radius ``r_max`` cannot go below
+    ``|P - mid| - rho - r_max``; only runs whose bound does not exceed ``u`` are evaluated.  On a
+    tube a point needs a handful of the runs, where a k-nearest search would need every sample
+    within its distance plus the radius spread.
+    """
+    # Distances are taken as |P|^2 - 2 P.C + |C|^2 (matrix products), about the spine's centre so
+    # that far-off coordinates lose no digits.
+    origin = centres.mean(axis=0)
+    points, centres = points - origin, centres - origin
+    n_runs = -(-len(centres) // FOOTPOINT_RUN)
+    run = np.minimum(np.arange(n_runs * FOOTPOINT_RUN), len(centres) - 1).reshape(n_runs, -1)
+    mid = centres[run].mean(axis=1)
+    reach = np.linalg.norm(centres[run] - mid[:, None], axis=2).max(axis=1) + radii[run].max(axis=1)
+    near_d, near = cKDTree(centres).query(points, workers=_workers(points))
+    best = near.copy()
+    for lo in range(0, len(points), FOOTPOINT_BATCH):
+        p, j = points[lo:lo + FOOTPOINT_BATCH], near[lo:lo + FOOTPOINT_BATCH]
+        p2 = np.einsum("ij,ij->i", p, p)
+        best_f = near_d[lo:lo + FOOTPOINT_BATCH] - radii[j]
+        limit = best_f[:, None] + reach
+        d2 = p2[:, None] - 2 * p @ mid.T + np.einsum("ij,ij->i", mid, mid)
+        needed = (limit >= 0) & (d2 <= limit**2)
+        for r in range(n_runs):
+            idx = np.flatnonzero(needed[:, r])
+            if not len(idx):
+                continue
+            c = centres[run[r]]
+            f = np.sqrt(np.maximum(p2[idx, None] - 2 * p[idx] @ c.T + np.einsum("ij,ij->i", c, c), 0.0))
+            f -= radii[run[r]]
+            k = f.argmin(axis=1)
+            f_min = f[np.arange(len(idx)), k]
+            better = f_min < best_f[idx]
+            best_f[idx[better]] = f_min[better]
+            best[lo + idx[better]] = run[r, k[better]]
+    return best
+
+
+def _polyline_start(points: np.ndarray, ts: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Parameter of each point's closest point on the polyline through ``centres`` (at ``ts``).
+
+    The nearest centre is found by a KD-tree, then the point is projected onto the two segments at
+    it: the start is then off by the square of the sample spacing, not by the spacing, which saves
+    the footpoint search a Newton step.
+    """
+    near = cKDTree(centres).query(points, workers=_workers(points))[1]
+    best_t, best_d = ts[near], np.full(len(points), np.inf)
+    for a in (np.maximum(near - 1, 0), np.minimum(near, len(ts) - 2)):
+        chord = centres[a + 1] - centres[a]
+        along = np.einsum("ij,ij->i", points - centres[a], chord)
+        s = np.clip(along / np.maximum(np.einsum("ij,ij->i", chord, chord), 1e-300), 0.0, 1.0)
+        d = np.linalg.norm(points - centres[a] - s[:, None] * chord, axis=1)
+        better = d < best_d
+        best_t[better] = (ts[a] + s * (ts[a + 1] - ts[a]))[better]
+        best_d[better] = d[better]
+    return best_t
+
+
+def outlier_cut(residual: np.ndarray, radius: float) -> float:
+    """Residuals farther than this from their median are stray points.
+
+    ``OUTLIER_SIGMAS`` robust standard deviations, the deviation taken as at least
+    ``MIN_SIGMA_PER_RADIUS`` of the tube's ``radius``.
+    """
+    return OUTLIER_SIGMAS * max(robust_sigma(residual), MIN_SIGMA_PER_RADIUS * radius)
+
+
+def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool,
+               start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Parameter of the characteristic circle nearest to each point, and the signed distance.
 
     Parameters
@@ -71,6 +158,10 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *,
     spine, radius : BSpline
     closed : bool
         Parameters wrap around [0, 1); else they are clamped to [0, 1].
+    start : ndarray, shape (N,), optional
+        Parameters to start from, e.g. the footpoints on a slightly different spine: the nearest
+        footpoint is then followed from there.  By default every point starts from the best of a
+        set of samples along the spine.
 
     Returns
     -------
@@ -80,25 +171,16 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *,
     """
     ts = np.linspace(0.0, 1.0, FOOTPOINT_SAMPLES)
     radii = radius(ts)
-    spread = float(np.ptp(radii))
-    if spread == 0:
-        t = ts[cKDTree(spine(ts)).query(points, workers=_workers(points))[1]]
+    # A constant radius evaluates to values that differ in the last bits; that is still a pipe.
+    pipe = np.ptp(radii) <= PIPE_SPREAD * np.abs(radii).max()
+    if start is not None:
+        t = np.array(start, dtype=float)
+    elif pipe:
+        t = _polyline_start(points, ts, spine(ts))
     else:
-        # Start at the sample minimising |P - C| - r (on a canal not the nearest centre), searched
-        # among the nearest samples; only samples within (nearest distance + spread of r) can win,
-        # so points whose candidate list may be too short get an exact ball search.
+        # On a canal the start is the sample minimising |P - C| - r, not the nearest centre.
         ts = np.linspace(0.0, 1.0, FOOTPOINT_COARSE)
-        centres, radii = spine(ts), radius(ts)
-        k = min(FOOTPOINT_CANDIDATES, len(ts))
-        dist, idx = cKDTree(centres).query(points, k=k, workers=_workers(points))
-        f = dist - radii[idx]
-        t = ts[idx[np.arange(len(points)), np.argmin(f, axis=1)]]
-        short = np.flatnonzero(dist[:, -1] < dist[:, 0] + spread)
-        if len(short):
-            tree = cKDTree(centres)
-            for i, c in zip(short, tree.query_ball_point(points[short], dist[short, 0] + spread)):
-                c = np.asarray(c, dtype=np.intp)
-                t[i] = ts[c[np.argmin(np.linalg.norm(points[i] - centres[c], axis=1) - radii[c])]]
+        t = ts[_envelope_start(points, spine(ts), radius(ts))]
     d1, d2 = spine.derivative(1), spine.derivative(2)
     r1, r2 = radius.derivative(1), radius.derivative(2)
     active = np.ones(len(points), bool)
@@ -110,11 +192,15 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *,
         u = diff / dist[:, None]
         c1, c2 = d1(ta), d2(ta)
         uc1 = np.einsum("ij,ij->i", u, c1)
-        grad = -uc1 - r1(ta)
-        curv = (np.einsum("ij,ij->i", c1, c1) - uc1**2) / dist - np.einsum("ij,ij->i", u, c2) - r2(ta)
+        c1c1 = np.einsum("ij,ij->i", c1, c1)
+        grad = -uc1
+        curv = (c1c1 - uc1**2) / dist - np.einsum("ij,ij->i", u, c2)
+        if not pipe:
+            grad -= r1(ta)
+            curv -= r2(ta)
         # Where the second derivative is not positive Newton would climb: take a gradient step
         # scaled like |C'|^2 / d instead.
-        curv = np.where(curv > 0, curv, np.einsum("ij,ij->i", c1, c1) / dist)
+        curv = np.where(curv > 0, curv, c1c1 / dist)
         new = ta - grad / curv
         new = np.mod(new, 1.0) if closed else np.clip(new, 0.0, 1.0)
         moved = np.abs(new - ta) > FOOTPOINT_TOL
@@ -149,11 +235,13 @@ class RefineResult:
     iterations: int
 
 
-def _extended(f: BSpline, straight: bool):
-    """``f`` continued beyond [0, 1] by its tangent line (``straight``) or its end value.
+def _extended(f: BSpline):
+    """``f`` continued beyond [0, 1] by its tangent line.
 
     A cubic's own end polynomial curls away when extrapolated; a tube that goes on past the current
-    end of the spine goes on (locally) straight.
+    end of the spine goes on (locally) straight, and a canal's radius goes on changing at its rate
+    there (held constant, the continuation misfits a clean scan's points past the end by r' times
+    the distance, and they are cut as stray: the spine stops short).
     """
     d = f.derivative()
 
@@ -161,10 +249,8 @@ def _extended(f: BSpline, straight: bool):
         t = np.asarray(t, float)
         inside = np.clip(t, 0.0, 1.0)
         out = f(inside)
-        if straight:
-            over = (t - inside).reshape(t.shape + (1,) * (out.ndim - t.ndim))
-            out = out + over * d(inside)
-        return out
+        over = (t - inside).reshape(t.shape + (1,) * (out.ndim - t.ndim))
+        return out + over * d(inside)
 
     return g
 
@@ -174,12 +260,21 @@ def _end(s: np.ndarray) -> float:
 
     For footpoints spread evenly with gap ``g`` from an end ``e``, the first lies near ``e + g``.  The
     gap is measured on the next few points, as the density near an end may differ from the middle.
-    (A stray point beyond an end is already an outlier by its residual.)
+    Stray points that happen to lie near the surface's continuation past an end are far sparser than
+    the scan: the end is taken at the first run of ``END_GAPS`` gaps no wider than ``END_SPARSE``
+    times the runs just inside it, so they cannot drag the spine out.
     """
     m = END_GAPS
-    if len(s) <= m:
-        return float(s[0])
-    return float(s[0] - (s[m] - s[0]) / m)
+    if len(s) <= 4 * m:
+        j = min(m, len(s) - 1)
+        return float(s[0] - (s[j] - s[0]) / max(j, 1))
+    runs = s[m:] - s[:-m]
+    # Each run against the runs just inside it: the density may vary along the tube, strays are
+    # isolated where they are.
+    inside = np.median(np.stack([runs[m: len(runs) - 2 * m], runs[2 * m: len(runs) - m], runs[3 * m:]]), axis=0)
+    sparse = runs[: len(inside)] > END_SPARSE * inside
+    first = int(np.argmin(sparse)) if not sparse.all() else 0
+    return float(s[first] - runs[first] / m)
 
 
 def refine(points: np.ndarray, spine: BSpline, radius: BSpline, **kwargs) -> RefineResult:
@@ -197,6 +292,9 @@ def _refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool
            reach: float = 0.0) -> RefineResult:
     """Fit spine and radius to the points by robust Gauss-Newton.
 
+    A large cloud is first fitted through a seeded subset of ``SUBSET_POINTS``: the passes that
+    still move the spine and its ends run on few points, and those on all points start converged.
+
     Parameters
     ----------
     points : ndarray, shape (N, 3)
@@ -208,6 +306,7 @@ def _refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool
     radius_segments : int or None
         Knot intervals of the radius function; ``None`` for a constant radius (a pipe).
     iterations : int
+        Most Gauss-Newton passes (on the subset, and again on all points).
     reach : float
         How far (in length units) an open spine may grow past each end per pass; it is then trimmed
         to where the footpoints actually lie, so that it ends where the tube ends.
@@ -216,13 +315,32 @@ def _refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool
     -------
     RefineResult
     """
-    n = len(points)
-    inlier = np.ones(n, bool)
-    last_gain, last_ends = np.inf, np.full(2, np.inf)
+    options = {"closed": closed, "spine_segments": spine_segments, "radius_segments": radius_segments,
+               "iterations": iterations, "reach": reach}
+    subset = len(points) > SUBSET_FACTOR * SUBSET_POINTS
+    if subset:
+        pick = np.random.default_rng(0).choice(len(points), SUBSET_POINTS, replace=False)
+        spine, radius, _ = _passes(points[np.sort(pick)], spine, radius, follow=False, **options)
+    spine, radius, inlier = _passes(points, spine, radius, follow=subset, **options)
+    t, res = footpoints(points, spine, radius, closed=closed)
+    return RefineResult(spine, radius, t, res, inlier, iterations)
+
+
+def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, iterations, reach,
+            follow):
+    """Gauss-Newton passes until converged (see :func:`_refine`); the spine, radius and inliers.
+
+    Each pass searches every footpoint along the whole spine; with ``follow`` (a start that has
+    converged on a subset, so the spine moves little) only the first does, and later passes follow
+    each footpoint from the last pass's (carried through the re-parameterisations).
+    """
+    inlier = np.ones(len(points), bool)
+    history = []
+    t = None
     for it in range(iterations + 1):
         segs, rsegs = spine_segments, radius_segments
         if closed:
-            spine, extra, _ = arclength_reparametrize(
+            spine, extra, to_new = arclength_reparametrize(
                 spine, n_segments=segs, closed=True,
                 extra=[] if rsegs is None else [(radius, rsegs)])
         else:
@@ -232,24 +350,26 @@ def _refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool
             ext = reach / max(curve_length(spine), 1e-300)
             segs = int(np.ceil(spine_segments * (1 + 2 * ext)))
             rsegs = None if rsegs is None else int(np.ceil(radius_segments * (1 + 2 * ext)))
-            spine, extra, _ = arclength_reparametrize(
-                _extended(spine, True), n_segments=segs, closed=False, a=-ext, b=1 + ext,
-                extra=[] if rsegs is None else [(_extended(radius, False), rsegs)])
+            spine, extra, to_new = arclength_reparametrize(
+                _extended(spine), n_segments=segs, closed=False, a=-ext, b=1 + ext,
+                extra=[] if rsegs is None else [(_extended(radius), rsegs)])
         if rsegs is not None:
             radius = extra[0]
-        t, res = footpoints(points, spine, radius, closed=closed)
-        cut = OUTLIER_SIGMAS * max(robust_sigma(res), 1e-12 * curve_length(spine))
+        start = to_new(t) if follow and t is not None else None
+        t, res = footpoints(points, spine, radius, closed=closed, start=start)
+        cut = outlier_cut(res, max(reach, 1e-12 * curve_length(spine)))
         inlier = np.abs(res - np.median(res)) <= cut
         if it < iterations:
             # Levenberg-Marquardt: accept a step only if the truncated cost (outliers count as
-            # ``cut``) falls with re-computed footpoints; otherwise damp harder.
+            # ``cut``) falls with re-computed footpoints; otherwise damp harder.  A step moves the
+            # spine little, so the footpoints are followed from where they were.
             cost = np.minimum(res**2, cut**2).sum()
             gain = 0.0
             system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
             lam = _gcv_smoothing(*system, floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
             for damping in LM_DAMPING:
                 new_spine, new_radius = _step(system, spine, radius, segs, rsegs, closed, lam, damping)
-                new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed)
+                new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed, start=t)
                 new_cost = np.minimum(new_res**2, cut**2).sum()
                 if new_cost < cost:
                     spine, radius, t, res = new_spine, new_radius, new_t, new_res
@@ -261,27 +381,31 @@ def _refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool
             lo = max(_end(ti), 0.0) / length
             hi = min(length - _end(length - ti[::-1]), length) / length
             ends = np.array([lo * length, (1 - hi) * length])
-            spine, extra, _ = arclength_reparametrize(
+            spine, extra, to_new = arclength_reparametrize(
                 spine, n_segments=spine_segments, closed=False, a=lo, b=hi,
                 extra=[] if rsegs is None else [(radius, radius_segments)])
             if rsegs is not None:
                 radius = extra[0]
+            t = to_new(t)
         else:
             ends = np.zeros(2)  # nothing to trim on a loop
         if it < iterations:
             # Growing and trimming the ends perturbs the fit a little each pass, so "converged" means
-            # the ends and the pass's gain have stopped changing, not that the gain is zero.
-            if (abs(gain - last_gain) < CONVERGED_GAIN
-                    and np.abs(ends - last_ends).max() < CONVERGED_END * max(reach, 1e-300)):
+            # the ends and the pass's gain have stopped changing, not that the gain is zero -- or
+            # that they repeat those of a recent pass: the fit then cycles (e.g. GCV alternating
+            # between two penalty weights) and further passes only go round.
+            if any(abs(gain - g) < CONVERGED_GAIN
+                   and np.abs(ends - e).max() < CONVERGED_END * max(reach, 1e-300)
+                   for g, e in history[-CYCLE_PASSES:]):
                 break
-            last_gain, last_ends = gain, ends
-
-    t, res = footpoints(points, spine, radius, closed=closed)
-    return RefineResult(spine, radius, t, res, inlier, iterations)
+            history.append((gain, ends))
+    return spine, radius, inlier
 
 
 def _linearise(points, t, inlier, spine, radius, segs, rsegs, closed):
     """Normal equations of ``e_i = |P_i - C(t_i)| - r(t_i)`` in the coefficients, ``t_i`` fixed.
+
+    Outliers have weight zero, inliers weight one.
 
     Returns
     -------
@@ -290,36 +414,59 @@ def _linearise(points, t, inlier, spine, radius, segs, rsegs, closed):
     rss : float -- ``sum w e^2``
     nw : float -- total weight
     """
+    # Only the inliers count; in the order of t, the points of one knot interval are contiguous.
+    keep = np.flatnonzero(inlier)
+    keep = keep[np.argsort(t[keep], kind="stable")]
+    points, t = points[keep], t[keep]
     n = len(points)
     m = n_coefficients(segs, closed)
     diff = points - spine(t)
     dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-300)
     u = diff / dist[:, None]
     e = dist - radius(t)
-    w = inlier.astype(float)
-    B = design_matrix(t, segs, closed)
-    blocks = [B.multiply(-u[:, [a]]) for a in range(3)]
-    coef = [spine.c[:m, a] for a in range(3)]
-    pens = [penalty(segs, closed)] * 3
+    # Row i of the Jacobian J has non-zeros only at the basis functions of t_i: -u_i B(t_i) in each
+    # spine block and -B_r(t_i) in the radius block.
+    values, columns = local_basis(t, segs, closed)
     if rsegs is None:
-        blocks.append(sparse.csr_matrix(-np.ones((n, 1))))
-        coef.append(np.array([radius.c[0]]))
-        pens.append(sparse.csr_matrix((1, 1)))
+        mr, r_values, r_columns = 1, np.ones((n, 1)), np.zeros((n, 1), np.intp)
+        r_coef, r_pen = radius.c[:1], np.zeros((1, 1))
     else:
         mr = n_coefficients(rsegs, closed)
-        blocks.append(-design_matrix(t, rsegs, closed))
-        coef.append(radius.c[:mr])
-        pens.append(penalty(rsegs, closed))
-    J = sparse.hstack(blocks).tocsr()
-    JtW = J.T.multiply(w).tocsr()
-    spine_pen = sparse.block_diag(pens[:3] + [0 * pens[3]]).toarray()
-    radius_pen = sparse.block_diag([0 * pens[0]] * 3 + [pens[3]]).toarray()
-    JtWJ = (JtW @ J).toarray()
+        r_values, r_columns = local_basis(t, rsegs, closed)
+        r_coef, r_pen = radius.c[:mr], penalty(rsegs, closed)
+    size = 3 * m + mr
+    rows = -np.concatenate([u[:, [0]] * values, u[:, [1]] * values, u[:, [2]] * values, r_values], axis=1)
+    cols = np.concatenate([columns, columns + m, columns + 2 * m, r_columns + 3 * m], axis=1)
+    # A row's columns follow from its first spine and first radius column.
+    JtWJ = _gram(rows, cols, columns[:, 0] * mr + r_columns[:, 0], size)
+    JtWe = np.bincount(cols.ravel(), weights=(rows * e[:, None]).ravel(), minlength=size)
+    x = np.concatenate([spine.c[:m].T.ravel(), r_coef])
+    spine_pen = np.zeros((size, size))
+    pen = penalty(segs, closed)
+    for a in range(3):
+        spine_pen[a * m:(a + 1) * m, a * m:(a + 1) * m] = pen
     # The radius function keeps a light fixed penalty (like the initial fits); only the spine's
     # smoothing is chosen from the data.
-    fixed = SMOOTHING * w.sum() / m * radius_pen
-    return (JtWJ + fixed, JtW @ e + fixed @ np.concatenate(coef), spine_pen, np.concatenate(coef),
-            float((w * e**2).sum()), float(w.sum()))
+    fixed = np.zeros((size, size))
+    fixed[3 * m:, 3 * m:] = SMOOTHING * n / m * r_pen
+    return JtWJ + fixed, JtWe + fixed @ x, spine_pen, x, float(e @ e), float(n)
+
+
+def _gram(rows, cols, key, size):
+    """``J^T J`` of a sparse ``J`` given by the non-zeros ``rows`` of each row and their ``cols``.
+
+    Consecutive rows with the same ``key`` have the same columns; each such run is one small dense
+    product, added into the (size, size) result.
+    """
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    stop = np.r_[start[1:], len(key)]
+    blocks = np.empty((len(start), rows.shape[1], rows.shape[1]))
+    for g, (lo, hi) in enumerate(zip(start, stop)):
+        blocks[g] = rows[lo:hi].T @ rows[lo:hi]
+    out = np.zeros((size, size))
+    c = cols[start]
+    np.add.at(out, (c[:, :, None], c[:, None, :]), blocks)
+    return out
 
 
 def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float) -> float:

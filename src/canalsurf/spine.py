@@ -7,15 +7,16 @@ first three coefficients repeat at the end, so C, C' and C'' match at t = 0 and 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy import sparse
 from scipy.interpolate import BSpline
-from scipy.sparse.linalg import spsolve
 
 from .constants import SMOOTHING
 
-__all__ = ["constant_spline", "knots", "design_matrix", "coefficients_to_spline", "pspline_fit", "sample_arclength",
-           "arclength_reparametrize", "curve_length"]
+__all__ = ["constant_spline", "knots", "local_basis", "design_matrix", "coefficients_to_spline", "pspline_fit",
+           "sample_arclength", "arclength_reparametrize", "curve_length"]
 
 DEGREE = 3
 
@@ -39,17 +40,30 @@ def n_coefficients(n_segments: int, closed: bool) -> int:
     return n_segments if closed else n_segments + DEGREE
 
 
-def design_matrix(u: np.ndarray, n_segments: int, closed: bool) -> sparse.csr_matrix:
-    """Sparse B-spline basis at ``u`` (values in [0, 1]) with periodic columns folded when ``closed``."""
+def local_basis(u: np.ndarray, n_segments: int, closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The ``DEGREE + 1`` basis functions that do not vanish at each ``u`` (values in [0, 1]).
+
+    Returns
+    -------
+    values : ndarray, shape (N, DEGREE + 1)
+    columns : ndarray of int, shape (N, DEGREE + 1)
+        Their free coefficients: consecutive, wrapped around when ``closed``.
+    """
     u = np.clip(np.asarray(u, float), 0.0, 1.0)
     if closed:
         u = np.where(u >= 1.0, 0.0, u)
-    B = BSpline.design_matrix(u, knots(n_segments, closed), DEGREE).tocsc()
-    if not closed:
-        return B.tocsr()
-    fold = sparse.vstack([sparse.identity(n_segments, format="csr"),
-                          sparse.identity(n_segments, format="csr")[:DEGREE]])
-    return (B @ fold).tocsr()
+    B = BSpline.design_matrix(u, knots(n_segments, closed), DEGREE)
+    columns = B.indices.reshape(-1, DEGREE + 1)
+    return B.data.reshape(-1, DEGREE + 1), columns % n_segments if closed else columns
+
+
+def design_matrix(u: np.ndarray, n_segments: int, closed: bool) -> sparse.csr_matrix:
+    """Sparse B-spline basis at ``u`` (values in [0, 1]) with periodic columns folded when ``closed``."""
+    values, columns = local_basis(u, n_segments, closed)
+    B = sparse.csr_matrix((values.ravel(), columns.ravel(), np.arange(0, values.size + 1, DEGREE + 1)),
+                          shape=(len(values), n_coefficients(n_segments, closed)))
+    B.sum_duplicates()  # a loop of fewer than DEGREE + 1 segments folds a column onto itself
+    return B
 
 
 def coefficients_to_spline(coef: np.ndarray, n_segments: int, closed: bool) -> BSpline:
@@ -60,16 +74,23 @@ def coefficients_to_spline(coef: np.ndarray, n_segments: int, closed: bool) -> B
     return BSpline(knots(n_segments, closed), coef, DEGREE)
 
 
-def penalty(n_segments: int, closed: bool) -> sparse.csr_matrix:
-    """Second-difference penalty matrix D^T D on the free coefficients (cyclic when closed)."""
+@functools.lru_cache(maxsize=64)
+def penalty(n_segments: int, closed: bool) -> np.ndarray:
+    """Second-difference penalty matrix D^T D on the free coefficients (cyclic when closed).
+
+    Dense (splines here have at most a few hundred coefficients) and read-only: it is cached, as
+    the refinement asks for the same few sizes over and over.
+    """
     m = n_coefficients(n_segments, closed)
-    if closed:
-        I = sparse.identity(m, format="csr")
-        shift = sparse.eye(m, k=1, format="csr") + sparse.eye(m, k=1 - m, format="csr")
-        D = I - 2 * shift + shift @ shift
-    else:
-        D = sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(max(m - 2, 1), m), format="csr")
-    return (D.T @ D).tocsr()
+    rows = np.arange(m if closed else max(m - 2, 1))
+    D = np.zeros((len(rows), m))
+    for shift, weight in enumerate((1.0, -2.0, 1.0)):
+        cols = (rows + shift) % m if closed else rows + shift
+        inside = cols < m
+        np.add.at(D, (rows[inside], cols[inside]), weight)
+    P = D.T @ D
+    P.setflags(write=False)
+    return P
 
 
 def pspline_fit(u: np.ndarray, values: np.ndarray, *, n_segments: int, closed: bool = False,
@@ -95,14 +116,20 @@ def pspline_fit(u: np.ndarray, values: np.ndarray, *, n_segments: int, closed: b
     scipy.interpolate.BSpline
     """
     values = np.asarray(values, float)
+    flat = values.reshape(len(values), -1)
     w = np.ones(len(u)) if weights is None else np.asarray(weights, float)
-    B = design_matrix(u, n_segments, closed)
-    m = B.shape[1]
-    BtW = B.T.multiply(w).tocsr()
+    basis, columns = local_basis(u, n_segments, closed)
+    m = n_coefficients(n_segments, closed)
+    # The normal equations B^T W B c = B^T W v, summed from each point's non-zero basis functions
+    # (a sparse B costs more in overhead than these few hundred unknowns take to solve densely).
+    wb = w[:, None] * basis
+    pairs = (columns[:, :, None] * m + columns[:, None, :]).ravel()
+    BtWB = np.bincount(pairs, weights=(wb[:, :, None] * basis[:, None, :]).ravel(), minlength=m * m)
+    BtWv = np.column_stack([np.bincount(columns.ravel(), weights=(wb * v[:, None]).ravel(), minlength=m)
+                            for v in flat.T])
     lam = smoothing * w.sum() / m
-    A = (BtW @ B + lam * penalty(n_segments, closed)).tocsc()
-    coef = spsolve(A, BtW @ values)
-    return coefficients_to_spline(np.asarray(coef).reshape((m,) + values.shape[1:]), n_segments, closed)
+    coef = np.linalg.solve(BtWB.reshape(m, m) + lam * penalty(n_segments, closed), BtWv)
+    return coefficients_to_spline(coef.reshape((m,) + values.shape[1:]), n_segments, closed)
 
 
 def _dense(spline: BSpline, a: float, b: float, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
