@@ -14,6 +14,9 @@ The helpers are served by fixtures of the same name so test modules need not imp
 
 from __future__ import annotations
 
+import contextlib
+import signal
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -128,6 +131,32 @@ def angle_deg(a, b):
 def cylinder_fixture():
     """:func:`cylinder` (a factory: call it with the wanted size, noise and seed)."""
     return cylinder
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float):
+    """Turn a hang into a failure: ``TimeoutError`` once the block has run ``seconds`` (where the
+    platform has interval timers)."""
+    if not hasattr(signal, "setitimer"):
+        yield
+        return
+
+    def expire(signum, frame):
+        raise TimeoutError(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.fixture(name="time_limit")
+def time_limit_fixture():
+    """:func:`time_limit`."""
+    return time_limit
 
 
 @pytest.fixture(name="envelope")

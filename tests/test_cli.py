@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
 import re
 import shlex
-import signal
 import socket
 import struct
 import sys
@@ -71,25 +69,6 @@ def instant_pipeline(monkeypatch):
         return _straight_pipe()
 
     monkeypatch.setattr("canalsurf.pipeline.reconstruct", reconstruct)
-
-
-@contextlib.contextmanager
-def _deadline(seconds: int):
-    """Fail, instead of hanging, if the block runs longer than ``seconds`` (where SIGALRM exists)."""
-    if not hasattr(signal, "SIGALRM"):
-        yield
-        return
-
-    def expire(signum, frame):
-        raise TimeoutError(f"still running after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def _on_a_terminal(argv: list[str]) -> tuple[int, str]:
@@ -475,11 +454,11 @@ BAD_INPUTS = {
 
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
-def test_bad_input(case, tmp_path, capsys):
+def test_bad_input(case, tmp_path, capsys, time_limit):
     make, code, words = BAD_INPUTS[case]
     path = make(tmp_path)
     out = tmp_path / "out"
-    with _deadline(30):  # a reader waiting on the named pipe would otherwise hang the suite
+    with time_limit(30):  # a reader waiting on the named pipe would otherwise hang the suite
         assert cli.main(["reconstruct", str(path), "-o", str(out)]) == code
     captured = capsys.readouterr()
     line = _error_line(captured.err)

@@ -13,9 +13,6 @@ and 800 - 3000 points sampled by area.
 
 from __future__ import annotations
 
-import contextlib
-import signal
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, Phase, given, settings, strategies as st
@@ -26,6 +23,7 @@ import canalsurf
 from canalsurf.metrics import closest_point_distance, compare, radius_error
 from canalsurf.spine import constant_spline
 from canalsurf.synth import SyntheticTube, sample_tube
+from conftest import time_limit
 
 # The bar of test_pipeline.py, in shares of the mean true radius.
 SPINE_MEAN, SPINE_MAX, RADIUS_MEAN = 0.03, 0.15, 0.015
@@ -107,32 +105,13 @@ def random_tube(seed: int, legs: int, canal: bool, ratio: float, noise: float, n
     return SyntheticTube("random", points, normals, spine, radius, False, half_width)
 
 
-@contextlib.contextmanager
-def _time_limit(seconds: float):
-    """Turn a hang into a failure (where the platform has interval timers)."""
-    if not hasattr(signal, "setitimer"):
-        yield
-        return
-
-    def expire(signum, frame):
-        raise TimeoutError(f"reconstruct took more than {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-
-
 def attempt(points):
     """The model, or None if the points were refused with a proper one-line ReconstructionError.
 
     Any other exception propagates and fails the test.
     """
     try:
-        with _time_limit(TIME_LIMIT_S):
+        with time_limit(TIME_LIMIT_S):
             return canalsurf.reconstruct(points)
     except canalsurf.ReconstructionError as exc:
         message = str(exc)
