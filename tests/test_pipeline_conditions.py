@@ -23,8 +23,8 @@ SPINE_MEAN_HARD, RADIUS_MEAN_ONE_SIDED = 0.06, 0.04
 SPINE_MAX_SPARSE = 0.25
 
 #: Conditions held to the looser bars.
-HARD = {"outliers-5pc-pipe", "outliers-5pc-canal", "one-sided-180", "one-sided-270", "one-sided-canal",
-        "one-sided-elbow"}
+HARD = {"outliers-5pc-pipe", "outliers-5pc-canal", "one-sided-180", "one-sided-270", "one-sided-120",
+        "one-sided-canal", "one-sided-elbow"}
 
 
 def assert_bar(model, tube, spine_mean=SPINE_MEAN, radius_mean=RADIUS_MEAN, spine_max=SPINE_MAX):
@@ -59,6 +59,18 @@ def test_angular_coverage_is_reported(arc, one_sided):
     # 100 points per stretch leave a largest gap of ~2 pi ln(100) / 100 rad (~17 degrees) all around.
     assert arc - 30 <= d["angular_coverage"] <= arc + 1e-9
     assert d["one_sided"] is one_sided
+
+
+def test_a_scan_with_no_opposite_side_falls_back_on_concentration():
+    """120 degrees of each cross-section: the paper's rule finds too few opposite normals to stop."""
+    tube = canalsurf.make_tube("fig9-pipe", arc=120, rng=13)
+    model = canalsurf.reconstruct(tube.points)
+    assert model.diagnostics["stop_rule"] == "concentration"
+    assert_bar(model, tube, spine_mean=SPINE_MEAN_HARD, radius_mean=RADIUS_MEAN_ONE_SIDED)
+    # The printed rule alone cannot stop on it: the points pass the spine without meeting enough
+    # opposite normals, up to the move bound.
+    paper = canalsurf.reconstruct(tube.points, stop="paper", kind="pipe", mu=0.7, refine=False)
+    assert paper.diagnostics["stop_rule"] == "max-moves"
 
 
 def test_stray_points_are_counted_not_fitted():

@@ -6,11 +6,13 @@ import math
 
 import numpy as np
 import pytest
+from scipy.interpolate import BSpline
+from scipy.spatial import cKDTree
 
 from canalsurf import synth
 from canalsurf.constants import PATIENCE, TAU
 from canalsurf.normals import estimate_normals
-from canalsurf.shrink import break_mask, shrink
+from canalsurf.shrink import break_mask, shrink, shrink_by_concentration
 
 SEED = 11
 #: The paper's canal tolerance, cos 80 deg.
@@ -264,3 +266,32 @@ def test_algorithm2_distances_track_the_true_radius(envelope):
     thick, thin = kept & (t > 0.9), kept & (np.abs(t - 0.55) < 0.05)
     assert res.distance[thick].mean() - res.distance[thin].mean() == pytest.approx(
         radius(t[thick]).mean() - radius(t[thin]).mean(), abs=2 * delta)
+
+
+@pytest.mark.parametrize("arc_deg", [120.0, 200.0, 360.0])
+def test_concentration_moves_a_partial_cylinder_to_its_axis(cylinder, arc_deg):
+    """No opposite normals needed: a scan of only part of the circumference still reaches the axis."""
+    points, normals, _, _ = cylinder(2000, radius=1.0, length=10.0, noise=0.02, arc=np.radians(arc_deg))
+    neighbours = cKDTree(points).query(points, k=16)[1]
+    result = shrink_by_concentration(points, normals, R=0.2, delta=0.05, max_distance=4.0,
+                                     neighbours=neighbours)
+    assert result.stop_rule == "concentration" and result.converged and result.keep.all()
+    # Each point moves by its radius to within a step; the points land on the axis.
+    assert np.abs(result.distance - 1.0).max() <= 0.05 + 0.02 + 1e-9
+    assert np.median(np.linalg.norm(result.points[:, :2], axis=1)) <= 0.05
+
+
+def test_concentration_follows_a_varying_radius(envelope):
+    """On a cone-like canal each point moves by the radius of its own cross-section."""
+    spine = BSpline(np.array([0.0, 0, 1, 1]), np.array([[0.0, 0, 0], [0, 0, 20.0]]), 1)
+    radius = BSpline(np.array([0.0, 0, 1, 1]), np.array([1.0, 2.0]), 1)
+    rng = np.random.default_rng(3)
+    t, s = rng.uniform(0.05, 0.95, 4000), rng.uniform(0.0, np.pi, 4000)  # one side only
+    points, normals = envelope(spine, radius, t, s)
+    neighbours = cKDTree(points).query(points, k=16)[1]
+    result = shrink_by_concentration(points, normals, R=0.2, delta=0.05, max_distance=4.0,
+                                     neighbours=neighbours)
+    # The distance to the spine along the envelope's normal is r sqrt(1 + r'^2 / |C'|^2) ~ r here.
+    expected = radius(t) * np.sqrt(1 + (1.0 / 20.0) ** 2)
+    assert np.median(np.abs(result.distance - expected)) <= 0.05
+    assert np.percentile(np.abs(result.distance - expected), 95) <= 0.15

@@ -101,5 +101,8 @@ ONE_SIDED_DEGREES = 300.0
 #: More stray points than this share (residual beyond OUTLIER_SIGMAS) means the input is not one tube
 #: (real scans have a few percent of stray points).
 MAX_STRAY_SHARE = 0.2
+#: A one-sided scan's shifted points must crowd at least this many times as close at the spine as on
+#: the surface (on a tube about 4 r / R = 20 times; on a blob of noise about once).
+MIN_CONCENTRATION = 3.0
 #: Fewer points than this share reaching the spine means the shape is not a tube.
 MIN_KEPT_SHARE = 0.3

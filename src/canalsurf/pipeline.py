@@ -24,7 +24,7 @@ from .normals import estimate_normals
 from .order import order_curve
 from .radius import curvature_radius, pipe_radius, prefer_canal
 from .refine import footpoints, outlier_cut, refine as refine_fit, robust_sigma
-from .shrink import shrink
+from .shrink import shrink, shrink_by_concentration
 from .spine import constant_spline, pspline_fit
 from .thin import mls_thin
 
@@ -183,8 +183,19 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     with timer("shrink"):
         sr = shrink(pts, nrm, R=p["R"], delta=p["delta"], mu=p["mu"], tau=p["tau"], kind=algo, stop=stop,
                     neighbours=neighbours, max_distance=C.MAX_SHRINK_PER_RADIUS * r0)
-    log.info("shrinking: %d moves, break count %d, stopped by %s", sr.iterations, sr.break_counts[-1],
-             sr.stop_rule)
+        log.info("shrinking: %d moves, break count %d, stopped by %s", sr.iterations, sr.break_counts[-1],
+                 sr.stop_rule)
+        if stop == "auto" and (not sr.converged or sr.keep.sum() < C.MIN_KEPT_SHARE * len(pts)):
+            # Too few points met an opposite normal: the scan saw the tube from one side.
+            log.info("too few points met the other side of the tube (a one-sided scan?): each point "
+                     "moves by the distance at which the shifted points concentrate most")
+            sr = shrink_by_concentration(pts, nrm, R=p["R"], delta=p["delta"],
+                                         max_distance=C.MAX_SHRINK_PER_RADIUS * r0,
+                                         neighbours=tree.query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)),
+                                                               workers=-1)[1])
+            if sr.break_counts.max() < C.MIN_CONCENTRATION * max(sr.break_counts[0], 1):
+                raise ReconstructionError("no spine: the points shifted along their normals do not "
+                                          "gather anywhere — the input is not a tube")
     if not sr.converged and stop == "auto":
         raise ReconstructionError(
             f"shrinking did not stop after {sr.iterations} moves (no opposite normals met) — "

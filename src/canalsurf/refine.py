@@ -37,8 +37,11 @@ FOOTPOINT_TOL = 1e-7
 GCV_GRID = 10.0 ** np.arange(0.0, 6.5, 0.5)
 #: Gaps averaged for the local footpoint spacing at an end.
 END_GAPS = 8
-#: ... and a run of them more than this many times as long as the runs inside it is stray points.
-END_SPARSE = 2.0
+#: ... and a run of END_GAPS gaps more than this many times as long as the runs inside it is stray.
+END_SPARSE = 2.5
+#: ... or a single gap this many times the mean gap inside (a stray just past the end): one gap of an
+#: even sampling exceeds it with probability exp(-6).
+END_GAP_JUMP = 6.0
 #: The fit has converged when a pass's relative cost reduction changes by less than this from the
 #: last pass and neither end moves by more than ``CONVERGED_END`` of the reach.
 CONVERGED_GAIN = 1e-4
@@ -261,8 +264,9 @@ def _end(s: np.ndarray) -> float:
     For footpoints spread evenly with gap ``g`` from an end ``e``, the first lies near ``e + g``.  The
     gap is measured on the next few points, as the density near an end may differ from the middle.
     Stray points that happen to lie near the surface's continuation past an end are far sparser than
-    the scan: the end is taken at the first run of ``END_GAPS`` gaps no wider than ``END_SPARSE``
-    times the runs just inside it, so they cannot drag the spine out.
+    the scan: the end is taken at the first point whose run of ``END_GAPS`` gaps is no wider than
+    ``END_SPARSE`` times the runs just inside it and whose next gap is no wider than ``END_GAP_JUMP``
+    mean gaps there, so they cannot drag the spine out.
     """
     m = END_GAPS
     if len(s) <= 4 * m:
@@ -272,7 +276,8 @@ def _end(s: np.ndarray) -> float:
     # Each run against the runs just inside it: the density may vary along the tube, strays are
     # isolated where they are.
     inside = np.median(np.stack([runs[m: len(runs) - 2 * m], runs[2 * m: len(runs) - m], runs[3 * m:]]), axis=0)
-    sparse = runs[: len(inside)] > END_SPARSE * inside
+    gaps = np.diff(s)[: len(inside)]
+    sparse = (runs[: len(inside)] > END_SPARSE * inside) | (gaps > END_GAP_JUMP * inside / m)
     first = int(np.argmin(sparse)) if not sparse.all() else 0
     return float(s[first] - runs[first] / m)
 
@@ -347,7 +352,8 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             # Fit on the spine continued straight for ``reach`` past each end: points beyond the
             # current end then meet the tube's continuation, not the end sphere.  The margins without
             # points stay straight under the penalty and are trimmed off after the step.
-            ext = reach / max(curve_length(spine), 1e-300)
+            # (Never more than the spine's own length: a spine shorter than the reach is no tube's.)
+            ext = min(reach / max(curve_length(spine), 1e-300), 1.0)
             segs = int(np.ceil(spine_segments * (1 + 2 * ext)))
             rsegs = None if rsegs is None else int(np.ceil(radius_segments * (1 + 2 * ext)))
             spine, extra, to_new = arclength_reparametrize(

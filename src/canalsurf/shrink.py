@@ -15,6 +15,12 @@ side).  ``stop="auto"`` (default) adds robust rules: Algorithm 1 also stops when
 its peak and returns the state at the peak; Algorithm 2 also stops after ``PATIENCE`` moves without a newly
 stopped point and drops the points that never stopped.  The result records which rule fired.
 
+Scans from one side.  Both algorithms need each point to meet one with an opposite normal, i.e. the
+other side of the tube; a scan that saw only part of the circumference may have none.
+:func:`shrink_by_concentration` needs none: it moves each point by the distance at which the shifted
+points crowd together most (on a tube, the spine), and the pipeline falls back on it when the
+algorithm of the paper does not stop.
+
 Neighbours.  ``neighbours="kdtree"`` finds all pairs within ``R`` on a KD-tree;
 ``neighbours="gauss"`` is the paper's grouping: normals are hashed into latitude/longitude cells of the
 Gauss map and a point is only checked against the points of the antipodal cell.
@@ -29,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from .constants import MAX_SHRINK_PER_RADIUS, PATIENCE, PEAK_DROP, PEAK_MIN_SHARE
 
-__all__ = ["ShrinkResult", "shrink", "break_mask"]
+__all__ = ["ShrinkResult", "shrink", "shrink_by_concentration", "break_mask"]
 
 #: Latitude x longitude cells of the paper's Gauss-map grouping (the paper leaves a, b open).
 GAUSS_CELLS = (6, 12)
@@ -52,7 +58,8 @@ class ShrinkResult:
     break_counts : ndarray of int
         Break count after 0, 1, ..., ``iterations`` moves.
     stop_rule : str
-        ``"mu"`` (break count reached mu * n), ``"peak"``, ``"patience"`` or ``"max-moves"`` (did not stop).
+        ``"mu"`` (break count reached mu * n), ``"peak"``, ``"patience"``, ``"max-moves"`` (did not stop)
+        or ``"concentration"`` (:func:`shrink_by_concentration`).
     converged : bool
         False only when the iteration bound was hit.
     """
@@ -224,3 +231,44 @@ def shrink(points: np.ndarray, normals: np.ndarray, *, R: float, delta: float, m
     keep = stopped if stop == "auto" else np.ones(n, bool)
     return ShrinkResult(points - dist[:, None] * normals, keep, dist, len(counts) - 1,
                         np.array(counts), rule, rule != "max-moves")
+
+
+def shrink_by_concentration(points: np.ndarray, normals: np.ndarray, *, R: float, delta: float,
+                            max_distance: float, neighbours: np.ndarray) -> ShrinkResult:
+    """Move each point by the distance at which the shifted points concentrate most.
+
+    For each move ``m delta`` all points are shifted against their normals and each point's count of
+    shifted points within ``R`` is taken; shifted by its own radius, a point lands on the spine with
+    the points of its cross-section, so its count peaks there whether or not the other side of the tube
+    was scanned.  The counts are averaged over each point's ``neighbours`` on the surface (they share
+    its radius) before the peak is picked, which steadies the choice on sparse scans.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+        Points and outward unit normals.
+    R : float
+        Radius of the count (as in :func:`shrink`).
+    delta : float
+        Step of the distances tried.
+    max_distance : float
+        Largest distance tried.
+    neighbours : ndarray of int, shape (N, k)
+        Each point's nearest neighbours on the surface (the first column may be the point itself).
+
+    Returns
+    -------
+    ShrinkResult
+        ``break_counts`` holds the total count after each move; every point is kept.
+    """
+    moves = int(np.ceil(max_distance / delta))
+    counts = np.empty((moves + 1, len(points)))
+    for m in range(moves + 1):
+        shifted = points - (m * delta) * normals
+        counts[m] = cKDTree(shifted).query_ball_point(shifted, np.nextafter(R, 0.0), return_length=True,
+                                                      workers=-1)
+    local = counts[:, neighbours].mean(axis=2)
+    best = np.argmax(local, axis=0)
+    dist = best * delta
+    return ShrinkResult(points - dist[:, None] * normals, np.ones(len(points), bool), dist, int(best.max()),
+                        counts.sum(axis=1).astype(int), "concentration", True)

@@ -199,6 +199,7 @@ CONDITIONS = {
     "canal-radius-x3": ("canal-x3", {}),
     "one-sided-180": ("fig9-pipe", {"arc": 180}),
     "one-sided-270": ("fig9-pipe", {"arc": 270}),
+    "one-sided-120": ("fig9-pipe", {"arc": 120}),
     "one-sided-canal": ("fig14-canal", {"arc": 180}),
     "one-sided-elbow": ("elbow", {"arc": 200}),
 }
