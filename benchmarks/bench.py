@@ -7,6 +7,10 @@ all cores -- is measured in the same run, so machine noise cancels in the ratio.
 child's maximum resident set size (``os.wait4``).  Accuracy is measured against the ground truth.
 Each size is checked against its targets (``TARGETS``).
 
+Sampling, the floor and scoring run in helper processes of their own: Linux counts the memory of the
+process that starts a child into the child's peak, so the process that starts ``canalsurf`` must
+stay small (it does not even import numpy).
+
 Run from the repository root::
 
     python benchmarks/bench.py                 # 2k, 20k, 200k, 1M points
@@ -26,13 +30,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-from scipy.spatial import cKDTree
-
-import canalsurf
-from canalsurf.io import write_points
-from canalsurf.metrics import compare
-
 SIZES = (2_000, 20_000, 200_000, 1_000_000)
 FULL = (10_000_000,)
 COMMAND = "python benchmarks/bench.py --markdown docs/performance.md"
@@ -48,11 +45,45 @@ TARGETS = {
 }
 
 
-def floor_seconds(points: np.ndarray) -> float:
-    """One KD-tree build and a 16-NN query over all points, all cores."""
-    start = time.perf_counter()
-    cKDTree(points).query(points, k=16, workers=-1)
-    return time.perf_counter() - start
+def _tube(n: int):
+    """The benchmark cloud of ``n`` points and its ground truth (the same every time)."""
+    import canalsurf
+
+    return canalsurf.make_tube("fig9-pipe", n=n, rng=0)
+
+
+def prepare(n: int, cloud: Path, repeat: int) -> dict:
+    """Write the cloud of ``n`` points to ``cloud``; the fastest of ``repeat`` floors in seconds."""
+    from scipy.spatial import cKDTree
+
+    from canalsurf.io import write_points
+
+    points = _tube(n).points
+    write_points(cloud, points, None)
+    floors = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        cKDTree(points).query(points, k=16, workers=-1)
+        floors.append(time.perf_counter() - start)
+    return {"floor": min(floors)}
+
+
+def score(n: int, model_path: Path) -> dict:
+    """Spine and radius errors of the model at ``model_path``, in shares of the true mean radius."""
+    import canalsurf
+    from canalsurf.metrics import compare
+
+    c = compare(canalsurf.load_model(model_path), _tube(n))
+    r = c["mean_radius"]
+    return {"spine_mean": c["spine_mean"] / r, "spine_max": c["spine_max"] / r,
+            "radius": c["radius"]["max"] / r}
+
+
+def _helper(task: str, *args) -> dict:
+    """Run ``task`` (prepare or score) of this script in a fresh process; its JSON answer."""
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--helper", task, *map(str, args)],
+                         check=True, stdout=subprocess.PIPE, text=True)
+    return json.loads(out.stdout.splitlines()[-1])
 
 
 def run_cli(cloud: Path, out: Path) -> tuple[float, int, dict, int]:
@@ -90,20 +121,14 @@ def bench(n: int, workdir: Path, repeat: int = 1) -> dict:
 
     Peak memory is the largest of the runs.
     """
-    tube = canalsurf.make_tube("fig9-pipe", n=n, rng=0)
-    cloud = workdir / f"fig9-{n}.ply"
-    write_points(cloud, tube.points, None)
-    floor = min(floor_seconds(tube.points) for _ in range(repeat))
-    runs = [run_cli(cloud, workdir / f"out-{n}") for _ in range(repeat)]
+    cloud, out = workdir / f"fig9-{n}.ply", workdir / f"out-{n}"
+    floor = _helper("prepare", n, cloud, repeat)["floor"]
+    runs = [run_cli(cloud, out) for _ in range(repeat)]
     wall, _, summary, code = min(runs, key=lambda r: (r[3] != 0, r[0]))
     rss = max(r[1] for r in runs)
     row = {"points": n, "wall": wall, "floor": floor, "ratio": wall / floor, "rss": rss, "exit": code}
     if code == 0:
-        model = canalsurf.load_model(workdir / f"out-{n}" / "model.json")
-        c = compare(model, tube)
-        r = c["mean_radius"]
-        row.update(stages=summary["diagnostics"]["seconds"], spine_mean=c["spine_mean"] / r,
-                   spine_max=c["spine_max"] / r, radius=c["radius"]["max"] / r)
+        row.update(stages=summary["diagnostics"]["seconds"], **_helper("score", n, out / "model.json"))
     else:
         row["error"] = summary.get("error", "")
     return row
@@ -129,7 +154,8 @@ def targets_table() -> str:
     lines = ["| points | total wall / floor | total wall, roughly | peak MB |", "|---|---|---|---|"]
     for n, (ratio, seconds, megabytes) in TARGETS.items():
         wall = f"≤ {seconds:g} s" + (" (start-up and imports included)" if ratio is None else "")
-        lines.append(f"| {n:,} | {'—' if ratio is None else f'≤ {ratio:g}'} | {wall} | ≤ {megabytes:,} |")
+        per_floor = "—" if ratio is None else f"≤ {ratio:g}"
+        lines.append(f"| {n:,} | {per_floor} | {wall} | ≤ {megabytes:,} |")
     return "\n".join(lines)
 
 
@@ -140,7 +166,15 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=1,
                         help="run floor and reconstruction this many times and keep the fastest")
     parser.add_argument("--markdown", type=Path, help="also write the table into this Markdown file")
+    parser.add_argument("--helper", nargs="+", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.helper:
+        task, n, path, *rest = args.helper
+        if task == "prepare":
+            print(json.dumps(prepare(int(n), Path(path), *map(int, rest))))
+        else:
+            print(json.dumps(score(int(n), Path(path))))
+        return 0
     sizes = args.sizes or (SIZES + (FULL if args.full else ()))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -152,7 +186,8 @@ def main(argv=None) -> int:
     if args.markdown:
         args.markdown.write_text(
             "# Performance\n\nMade by `" + COMMAND + "` on the development machine "
-            f"({os.cpu_count()} cores). Stage columns are the seconds `reconstruct` reports for each stage; "
+            f"({os.cpu_count()} cores). Stage columns are the seconds `reconstruct` reports for each "
+            "stage; "
             "*total wall* is the whole `canalsurf reconstruct` process (start-up, reading, meshing, "
             "writing); the *floor* is one KD-tree build plus a 16-nearest-neighbour query over all points "
             "on all cores, measured in the same run; *ratio* = total / floor; *peak MB* is the child "

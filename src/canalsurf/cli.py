@@ -509,8 +509,11 @@ _DXF_AVAILABLE: bool | None = None
 
 
 def _dxf_available() -> bool:
-    """ezdxf is installed (checked once per process, without importing it: that takes longer than
-    a small reconstruction, and happens only when spine.dxf is written)."""
+    """ezdxf is installed (checked once per process).
+
+    It is not imported here: that takes longer than a small reconstruction, and happens only when
+    spine.dxf is written.
+    """
     global _DXF_AVAILABLE
     if _DXF_AVAILABLE is None:
         if "ezdxf" in sys.modules:  # imported already, or blocked by a None entry

@@ -87,8 +87,16 @@ def mls_thin(points: np.ndarray, *, H: float) -> np.ndarray:
     rel = q - points[i]
     x = np.einsum("ij,ij->i", rel, e_x[i])
     y = np.einsum("ij,ij->i", rel, e_y[i])
-    s = [np.bincount(i, w * x**p, n) for p in range(5)]
-    t = [np.bincount(i, w * y * x**p, n) for p in range(3)]
+    # Weighted moments sum w x^p (p < 5) and sum w y x^p (p < 3), the powers by repeated products
+    # (``x**p`` goes through the general power function).
+    wx, wyx = w.copy(), w * y
+    s, t = [], []
+    for p in range(5):
+        s.append(np.bincount(i, wx, n))
+        if p < 3:
+            t.append(np.bincount(i, wyx, n))
+            wyx *= x
+        wx *= x
     # Normal equations of min sum w (a x^2 + b x + c - y)^2, unknowns (c, b, a).
     A = np.stack([np.stack([s[0], s[1], s[2]], -1), np.stack([s[1], s[2], s[3]], -1),
                   np.stack([s[2], s[3], s[4]], -1)], axis=1)
