@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from .constants import MIN_SIGMA_PER_RADIUS, OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
+from .errors import ReconstructionError
 from .spine import (arclength_reparametrize, constant_spline, curve_length, local_basis, n_coefficients,
                     penalty)
 
@@ -38,10 +39,13 @@ GCV_GRID = 10.0 ** np.arange(0.0, 6.5, 0.5)
 #: Gaps averaged for the local footpoint spacing at an end.
 END_GAPS = 8
 #: ... and a run of END_GAPS gaps more than this many times as long as the runs inside it is stray.
-END_SPARSE = 2.5
+END_SPARSE = 3.0
 #: ... or a single gap this many times the mean gap inside (a stray just past the end): one gap of an
-#: even sampling exceeds it with probability exp(-6).
-END_GAP_JUMP = 6.0
+#: even sampling exceeds it with probability exp(-8).
+END_GAP_JUMP = 8.0
+#: Only points within this many robust deviations of the surface place the ends: the scan's points
+#: crowd there, while stray points spread evenly over the whole outlier shell.
+END_SIGMAS = 2.0
 #: The fit has converged when a pass's relative cost reduction changes by less than this from the
 #: last pass and neither end moves by more than ``CONVERGED_END`` of the reach.
 CONVERGED_GAIN = 1e-4
@@ -383,9 +387,13 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
                     break
         if not closed:
             length = curve_length(spine)
-            ti = np.sort(t[inlier]) * length
+            near = np.abs(res - np.median(res)) <= END_SIGMAS / OUTLIER_SIGMAS * cut
+            ti = np.sort(t[near]) * length
             lo = max(_end(ti), 0.0) / length
             hi = min(length - _end(length - ti[::-1]), length) / length
+            if not hi - lo > END_GAPS / max(len(ti), 1):
+                raise ReconstructionError("the fitted spine shrank to a point: the points do not follow "
+                                          "a curve — the input is not a tube")
             ends = np.array([lo * length, (1 - hi) * length])
             spine, extra, to_new = arclength_reparametrize(
                 spine, n_segments=spine_segments, closed=False, a=lo, b=hi,
