@@ -32,7 +32,6 @@ from pathlib import Path
 
 SIZES = (2_000, 20_000, 200_000, 1_000_000)
 FULL = (10_000_000,)
-COMMAND = "python benchmarks/bench.py --markdown docs/performance.md"
 #: Targets per size: (largest total wall / floor, largest total wall in seconds, largest peak MB).
 #: Where a ratio is given it is the target and the seconds only say roughly what it means on a
 #: typical machine; a paper-sized cloud has no meaningful floor, so there the seconds count
@@ -167,6 +166,7 @@ def main(argv=None) -> int:
                         help="run floor and reconstruction this many times and keep the fastest")
     parser.add_argument("--markdown", type=Path, help="also write the table into this Markdown file")
     parser.add_argument("--helper", nargs="+", help=argparse.SUPPRESS)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     if args.helper:
         task, n, path, *rest = args.helper
@@ -185,7 +185,7 @@ def main(argv=None) -> int:
     print(text)
     if args.markdown:
         args.markdown.write_text(
-            "# Performance\n\nMade by `" + COMMAND + "` on the development machine "
+            "# Performance\n\nMade by `" + " ".join(["python", "benchmarks/bench.py", *argv]) + "` on the development machine "
             f"({os.cpu_count()} cores). Stage columns are the seconds `reconstruct` reports for each "
             "stage; "
             "*total wall* is the whole `canalsurf reconstruct` process (start-up, reading, meshing, "
