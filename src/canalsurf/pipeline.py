@@ -84,7 +84,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         Neighbours of the normal estimation (default 16).
     stop : {"auto", "paper"}
         ``"paper"`` uses only the printed ``mu`` rule (which can fail to stop); ``"auto"`` adds the
-        peak / patience rules.
+        peak / patience rules, and falls back on :func:`~canalsurf.shrink.shrink_by_concentration`
+        when too few points meet the other side of the tube (a scan from one side).
     neighbours : {"kdtree", "gauss"}
         Neighbour search of the shrinking: KD-tree pairs, or the paper's Gauss-map grouping.
     refine : bool
@@ -150,7 +151,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
             tree = cKDTree(pts)
             nrm = estimate_normals(pts, k=k, tree=tree) if given is None else given
             r0 = curvature_radius(pts, nrm, tree=tree)
-            dk = tree.query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)), workers=-1)[0][:, -1]
+            dist, nbr = tree.query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)), workers=-1)
+            dk = dist[:, -1]
             # Mean area per point is pi d_k^2 / k for the k-th neighbour distance d_k.
             area_per_point = np.pi * np.mean(dk**2) / C.NORMAL_NEIGHBOURS
             if draw is None or attempt or not np.isfinite(r0):
@@ -190,9 +192,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
             log.info("too few points met the other side of the tube (a one-sided scan?): each point "
                      "moves by the distance at which the shifted points concentrate most")
             sr = shrink_by_concentration(pts, nrm, R=p["R"], delta=p["delta"],
-                                         max_distance=C.MAX_SHRINK_PER_RADIUS * r0,
-                                         neighbours=tree.query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)),
-                                                               workers=-1)[1])
+                                         max_distance=C.MAX_SHRINK_PER_RADIUS * r0, neighbours=nbr)
             if sr.break_counts.max() < C.MIN_CONCENTRATION * max(sr.break_counts[0], 1):
                 raise ReconstructionError("no spine: the points shifted along their normals do not "
                                           "gather anywhere — the input is not a tube")
