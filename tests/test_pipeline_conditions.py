@@ -88,9 +88,10 @@ def test_a_large_scan_meets_the_bar():
     assert model.diagnostics["n_points"] == 200_000
 
 
-@pytest.mark.parametrize("factor", [1e-3, 1e3])
-def test_units_and_georeferenced_placement_do_not_matter(factor):
-    tube = canalsurf.make_tube("fig14-canal", rng=6)
+@pytest.mark.parametrize("name, seed, factor", [("fig9-pipe", 5, 1e3), ("fig14-canal", 6, 1e-3),
+                                                ("fig14-canal", 6, 1e3)])
+def test_units_and_georeferenced_placement_do_not_matter(name, seed, factor):
+    tube = canalsurf.make_tube(name, rng=seed)
     shift = np.array([1e6, 5e6, 1e2])
     base = canalsurf.reconstruct(tube.points)
     moved = canalsurf.reconstruct(tube.points * factor + shift)

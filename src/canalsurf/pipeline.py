@@ -23,7 +23,7 @@ from .model import CanalModel
 from .normals import estimate_normals
 from .order import order_curve
 from .radius import curvature_radius, pipe_radius, prefer_canal
-from .refine import footpoints, outlier_cut, refine as refine_fit, robust_sigma
+from .refine import footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import shrink, shrink_by_concentration
 from .spine import constant_spline, pspline_fit
 from .thin import mls_thin
@@ -253,7 +253,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
             fit_t, residual = footpoints(fit_pts, spine, radius_fn, closed=curve.closed)
 
     # How much of the circumference the scan saw (full scans read about 340 degrees or more).
-    near = np.abs(residual - np.median(residual)) <= outlier_cut(residual, r0)
+    near = ~is_stray(residual, r0)
     coverage = angular_coverage(fit_pts[near], spine, fit_t[near])
     coverage = float(np.median(coverage)) if len(coverage) else float("nan")
 
@@ -267,7 +267,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     # Whether the points form a tube is judged on the points near the surface: stray points (a few
     # percent in real scans) are far off by nature and must not make a good tube look like none.
     sigma = robust_sigma(residual)
-    stray = np.abs(residual - np.median(residual)) > outlier_cut(residual, r0)
+    stray = is_stray(residual, r0)
     inlier_rms = float(np.sqrt(np.mean(residual[~stray] ** 2))) if (~stray).any() else np.inf
     mean_r = float(np.mean(radius_fn(np.linspace(0, 1, 200))))
     if not mean_r > 0 or inlier_rms > MAX_RELATIVE_RESIDUAL * mean_r:

@@ -28,7 +28,7 @@ from .errors import ReconstructionError
 from .spine import (arclength_reparametrize, constant_spline, curve_length, local_basis, n_coefficients,
                     penalty)
 
-__all__ = ["footpoints", "refine", "RefineResult", "robust_sigma", "outlier_cut"]
+__all__ = ["footpoints", "refine", "RefineResult", "robust_sigma", "outlier_cut", "is_stray"]
 
 #: Most Newton steps of the footpoint search, and the parameter change that counts as converged:
 #: Newton converges quadratically, so after a step this small the parameter is exact to ~1e-12.
@@ -153,6 +153,11 @@ def outlier_cut(residual: np.ndarray, radius: float) -> float:
     ``MIN_SIGMA_PER_RADIUS`` of the tube's ``radius``.
     """
     return OUTLIER_SIGMAS * max(robust_sigma(residual), MIN_SIGMA_PER_RADIUS * radius)
+
+
+def is_stray(residual: np.ndarray, radius: float) -> np.ndarray:
+    """Points whose residual lies beyond :func:`outlier_cut` from the median residual."""
+    return np.abs(residual - np.median(residual)) > outlier_cut(residual, radius)
 
 
 def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool,
