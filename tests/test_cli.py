@@ -25,9 +25,10 @@ from canalsurf import cli, load_model
 from canalsurf.errors import ReconstructionError
 from canalsurf.io import read_points, write_points
 from canalsurf.model import CanalModel
+from canalsurf.network import Network
 from canalsurf.pipeline import STAGES
 from canalsurf.spine import constant_spline
-from canalsurf.synth import SURFACES, make_tube
+from canalsurf.synth import MAX_SYNTH_POINTS, NETWORKS, SURFACES, make_network, make_tube
 
 #: The cloud most tests reconstruct: the paper's Figure 9 pipe (true radius 1), another seed than the demo.
 CLOUD = ("fig9-pipe", 1)
@@ -52,11 +53,11 @@ def _never(*args, **kwargs):
     raise AssertionError("reconstruction should not start")
 
 
-def _straight_pipe() -> CanalModel:
+def _straight_pipe() -> Network:
     """A hand-made result (straight spine of length 10 along x, radius 1) for tests about the files."""
     u = np.linspace(0.0, 1.0, 5)
     spine = make_interp_spline(u, np.column_stack([10 * u, 0 * u, 0 * u]), k=3)
-    return CanalModel("pipe", spine, constant_spline(1.0), False, {"R": 0.5}, {"n_points": 2000})
+    return Network([CanalModel("pipe", spine, constant_spline(1.0), False)], [], {"R": 0.5}, {"n_points": 2000})
 
 
 @pytest.fixture
@@ -157,7 +158,8 @@ def test_global_options_before_or_after_the_command(capsys):
     assert cli.main(["--json", "synth", "--list"]) == 0
     first = json.loads(capsys.readouterr().out)
     assert cli.main(["synth", "--list", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out) == first == {n: s[-1] for n, s in SURFACES.items()}
+    assert json.loads(capsys.readouterr().out) == first == (
+        {n: s[-1] for n, s in SURFACES.items()} | {n: f"network: {s[-1]}" for n, s in NETWORKS.items()})
 
 
 def test_logging_is_restored_after_main(capsys):
@@ -171,11 +173,77 @@ def test_logging_is_restored_after_main(capsys):
 
 
 def test_synth_list(capsys):
+    """Surfaces first, then the networks, each said to be one."""
     assert cli.main(["synth", "--list"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == len(SURFACES)
-    for line, (name, spec) in zip(lines, SURFACES.items()):
+    assert len(lines) == len(SURFACES) + len(NETWORKS)
+    for line, (name, spec) in zip(lines, [*SURFACES.items(), *NETWORKS.items()]):
         assert line.split()[0] == name and line.endswith(spec[-1])
+        assert (line.split()[1] == "network:") == (name in NETWORKS)
+
+
+def test_synth_network(tmp_path, capsys):
+    path = tmp_path / "x.ply"
+    assert cli.main(["synth", "t-junction", "-o", str(path), "--n", "3000", "--seed", "5", "--normals"]) == 0
+    out = capsys.readouterr().out
+    assert out == (f"{path}: 3000 points of t-junction (3 branches, 1 junction; uniform noise ±2 % of the "
+                   "radius, seed 5, with true normals)\n")
+    truth = make_network("t-junction", n=3000, rng=5)
+    points, normals = read_points(path)
+    np.testing.assert_array_equal(points, truth.points)
+    np.testing.assert_array_equal(normals, truth.normals)
+
+
+def test_synth_network_options(tmp_path, capsys):
+    path = tmp_path / "scene.npy"
+    argv = ["synth", "scene", "-o", str(path), "--n", "1000", "--noise", "0.05", "--clutter", "0.3", "--json"]
+    assert cli.main(argv) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["network"] is True and record["n"] == 1000 and record["noise"] == 0.05
+    assert record["clutter"] == 0.3 and (record["branches"], record["junctions"]) == (8, 1)
+    np.testing.assert_array_equal(np.load(path), make_network("scene", n=1000, noise=0.05, clutter=0.3).points)
+    path = tmp_path / "plant.npy"
+    assert cli.main(["synth", "plant", "-o", str(path), "--n", "500", "--size", "2", "-q"]) == 0
+    np.testing.assert_array_equal(np.load(path), make_network("plant", n=500, size=2).points)
+
+
+def test_synth_summary_echoes_the_options(tmp_path, capsys):
+    path = tmp_path / "x.xyz"
+    argv = ["synth", "elbow", "-o", str(path), "--gaussian", "--noise", "0.03", "--arc", "200",
+            "--outliers", "0.05", "--density-ratio", "4", "--sampling", "parameter"]
+    assert cli.main(argv) == 0
+    out = capsys.readouterr().out
+    assert out == (f"{path}: 2000 points of elbow (Gaussian noise of standard deviation 0.03, one-sided scan "
+                   "of 200°, 5 % stray points, density falling 4x along the spine, uniform in the surface "
+                   "parameters, seed 0)\n")
+    assert "±" not in out
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["--seed", "-1"], "canalsurf: error: argument --seed: expected a non-negative integer, got '-1' — see "
+                       "'canalsurf synth --help'"),
+    (["--n", "99999999999999999999"], f"canalsurf: error: n = 99999999999999999999 points would not fit in "
+                                      f"memory; at most {MAX_SYNTH_POINTS:,} can be generated at once"),
+    (["--n", "1" + "0" * 5000], "canalsurf: error: argument --n: expected a positive integer, got "
+                                "'10000000000000000000...0000000000' — see 'canalsurf synth --help'"),
+    (["--noise", "1e308"], "canalsurf: error: noise 1e+308 is larger than the surface itself (the diagonal of "
+                           "its bounding box is 21.1); give a noise well below the radius"),
+    (["--clutter", "0.2"], "canalsurf: error: --clutter is an option of the networks, not of the surface "
+                           "'fig9-pipe' — see 'canalsurf synth --help'"),
+])
+@pytest.mark.parametrize("name", ["fig9-pipe", "t-junction"])
+def test_synth_bad_options_are_one_line(name, argv, line, tmp_path, capsys):
+    if name in NETWORKS:
+        line = {"--noise": "canalsurf: error: noise must be a share of the radius in [0, 0.5), got 1e+308",
+                "--clutter": None}.get(argv[0], line)
+        if line is None:
+            argv, line = ["--arc", "200"], ("canalsurf: error: --arc is an option of the surfaces, not of the "
+                                            "network 't-junction' — see 'canalsurf synth --help'")
+    out = tmp_path / "out"
+    assert cli.main(["synth", name, "-o", str(out / "x.ply"), *argv]) == 2
+    captured = capsys.readouterr()
+    assert _error_line(captured.err) == line
+    assert captured.out == "" and not out.exists()
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".xyz", ".csv", ".npy", ".npz"])
@@ -242,13 +310,14 @@ def test_reconstruct(cloud, tmp_path, capsys):
     model = load_model(out / "model.json")
     assert model.kind == "pipe" and not model.closed
     assert abs(model.mean_radius - 1.0) < RADIUS_TOL
-    samples = json.loads((out / "model.json").read_text())["samples"]
-    assert len(samples["t"]) >= 200
+    samples = json.loads((out / "model.json").read_text())["branches"][0]["samples"]
+    assert len(samples["t"]) >= 50
 
     # spine.csv holds exactly model.json's samples
     table = np.loadtxt(out / "spine.csv", delimiter=",", skiprows=1)
-    assert (out / "spine.csv").read_text().splitlines()[0] == "t,x,y,z,radius"
-    np.testing.assert_allclose(table, np.column_stack([samples["t"], samples["points"], samples["radius"]]),
+    assert (out / "spine.csv").read_text().splitlines()[0] == "branch,t,x,y,z,radius"
+    np.testing.assert_allclose(table, np.column_stack([np.zeros(len(samples["t"])), samples["t"],
+                                                       samples["points"], samples["radius"]]),
                                rtol=1e-15, atol=0)
 
     # process=False: judge the mesh as written, not after trimesh has merged or dropped anything
@@ -264,30 +333,33 @@ def test_reconstruct(cloud, tmp_path, capsys):
     if cli._dxf_available():
         expected.add("spine.dxf")
         _check_spine_dxf(out / "spine.dxf", json.loads((out / "model.json").read_text()))
-    assert {p.name for p in out.iterdir()} == expected  # nothing else (no staging folder)
+    # nothing else (no staging folder, no lock file) but the list of the files written
+    assert {p.name for p in out.iterdir()} == expected | {".canalsurf-manifest.json"}
 
 
 def _check_spine_dxf(path: Path, data: dict) -> None:
-    """spine.dxf holds model.json's spine as one exact SPLINE and the sampled radii on a polyline."""
+    """spine.dxf holds each branch's spine as one exact SPLINE and its sampled radii on a polyline."""
     import ezdxf
 
     msp = ezdxf.readfile(path).modelspace()
-    (spline,) = msp.query("SPLINE")
-    assert spline.dxf.degree == data["spine"]["degree"]
-    np.testing.assert_array_equal(np.array(spline.control_points), data["spine"]["control_points"])
-    np.testing.assert_array_equal(np.array(spline.knots), data["spine"]["knots"])
-    (line,) = msp.query("POLYLINE[layer=='RADIUS']")
-    vertices = list(line.vertices)
-    np.testing.assert_array_equal([list(v.dxf.location) for v in vertices], data["samples"]["points"])
-    np.testing.assert_array_equal([v.get_xdata("CANALSURF")[0].value for v in vertices],
-                                  data["samples"]["radius"])
+    splines, lines = msp.query("SPLINE"), msp.query("POLYLINE[layer=='RADIUS']")
+    assert len(splines) == len(lines) == len(data["branches"])
+    for spline, line, branch in zip(splines, lines, data["branches"]):
+        assert spline.dxf.degree == branch["spine"]["degree"]
+        np.testing.assert_array_equal(np.array(spline.control_points), branch["spine"]["control_points"])
+        np.testing.assert_array_equal(np.array(spline.knots), branch["spine"]["knots"])
+        vertices = list(line.vertices)
+        np.testing.assert_array_equal([list(v.dxf.location) for v in vertices], branch["samples"]["points"])
+        np.testing.assert_array_equal([v.get_xdata("CANALSURF")[0].value for v in vertices],
+                                      branch["samples"]["radius"])
 
 
 def test_without_ezdxf_spine_dxf_is_skipped_and_said(cloud, tmp_path, capsys, monkeypatch, instant_pipeline):
     monkeypatch.setitem(sys.modules, "ezdxf", None)  # import fails as if not installed
     monkeypatch.setattr(cli, "_DXF_AVAILABLE", None)  # forget an earlier answer
     assert cli.main(["-v", "reconstruct", str(cloud), "-o", str(tmp_path)]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json", "spine.csv", "surface.ply"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".canalsurf-manifest.json", "model.json", "spine.csv",
+                                                         "surface.ply"]
     assert "ezdxf is not installed: spine.dxf is skipped (pip install 'canalsurf[dxf]')" in \
         capsys.readouterr().err
 
@@ -352,7 +424,9 @@ def test_json(cloud, tmp_path, capsys):
     captured = capsys.readouterr()
     ok, bad = (json.loads(line) for line in captured.out.strip().splitlines())
     assert ok["input"] == str(cloud) and ok["outdir"] == str(out / "pipe")
-    assert ok["kind"] == "pipe" and ok["closed"] is False and abs(ok["radius"] - 1) < RADIUS_TOL
+    (branch,) = ok["branches"]
+    assert branch["kind"] == "pipe" and branch["closed"] is False and abs(branch["radius"] - 1) < RADIUS_TOL
+    assert branch["ends"] == [None, None] and ok["junctions"] == 0 and ok["components"] == [[0]]
     assert {"R", "delta", "mu", "tau", "H"} <= set(ok["parameters"])
     assert ok["diagnostics"]["n_points"] == 2000
     assert all(Path(f).is_file() for f in ok["files"]) and str(out / "pipe" / "model.json") in ok["files"]

@@ -774,44 +774,52 @@ def _spine():
 
 def test_spine_csv_round_trip(tmp_path):
     t, _, _, _, samples, radius = _spine()
+    branch = np.repeat([0, 1, 2], [20, 20, 17])
     path = tmp_path / "spine.csv"
-    write_spine_csv(path, t, samples, radius)
-    assert path.read_text().splitlines()[0] == "t,x,y,z,radius"
+    write_spine_csv(path, t, samples, radius, branch)
+    assert path.read_text().splitlines()[0] == "branch,t,x,y,z,radius"
     table = np.loadtxt(path, delimiter=",", skiprows=1)
-    np.testing.assert_array_equal(table, np.column_stack([t, samples, radius]))  # bit-exact
+    np.testing.assert_array_equal(table, np.column_stack([branch, t, samples, radius]))  # bit-exact
+
+
+def test_spine_csv_of_one_tube_is_branch_0(tmp_path):
+    t, _, _, _, samples, radius = _spine()
+    write_spine_csv(tmp_path / "spine.csv", t, samples, radius)
+    assert np.all(np.loadtxt(tmp_path / "spine.csv", delimiter=",", skiprows=1)[:, 0] == 0)
 
 
 def test_spine_csv_bad_shapes(tmp_path):
     t, _, _, _, samples, radius = _spine()
-    with pytest.raises(InputError, match=r"spine CSV needs t \(M,\), points \(M, 3\) and radius \(M,\)"):
+    with pytest.raises(InputError, match=r"spine CSV needs branch \(M,\), t \(M,\), points \(M, 3\) and radius \(M,\)"):
         write_spine_csv(tmp_path / "spine.csv", t[:-1], samples, radius)
 
 
 def test_spine_dxf_round_trip(tmp_path):
+    """One exact SPLINE and one radius polyline per branch."""
     ezdxf = pytest.importorskip("ezdxf")
     _, knots, control, degree, samples, radius = _spine()
     path = tmp_path / "spine.dxf"
-    write_spine_dxf(path, knots, control, degree, samples, radius)
+    second = (knots, control + 10.0, degree, samples + 10.0, radius * 2)
+    write_spine_dxf(path, [(knots, control, degree, samples, radius), second])
     doc = ezdxf.readfile(path)
     splines = doc.modelspace().query("SPLINE")
-    assert len(splines) == 1
-    spline = splines[0]
-    assert spline.dxf.layer == "SPINE" and spline.dxf.degree == degree
-    np.testing.assert_array_equal(np.array(spline.control_points), control)
-    np.testing.assert_array_equal(np.array(spline.knots), knots)
     lines = doc.modelspace().query("POLYLINE[layer=='RADIUS']")
-    assert len(lines) == 1
-    vertices = list(lines[0].vertices)
-    np.testing.assert_array_equal([list(v.dxf.location) for v in vertices], samples)
-    got_radius = [v.get_xdata(io.DXF_APPID)[0].value for v in vertices]
-    np.testing.assert_array_equal(got_radius, radius)
+    assert len(splines) == 2 and len(lines) == 2
+    for spline, line, shift, scale in zip(splines, lines, (0.0, 10.0), (1.0, 2.0)):
+        assert spline.dxf.layer == "SPINE" and spline.dxf.degree == degree
+        np.testing.assert_array_equal(np.array(spline.control_points), control + shift)
+        np.testing.assert_array_equal(np.array(spline.knots), knots)
+        vertices = list(line.vertices)
+        np.testing.assert_array_equal([list(v.dxf.location) for v in vertices], samples + shift)
+        got_radius = [v.get_xdata(io.DXF_APPID)[0].value for v in vertices]
+        np.testing.assert_array_equal(got_radius, radius * scale)
 
 
 def test_spine_dxf_knot_count_is_checked(tmp_path):
     pytest.importorskip("ezdxf")
     _, knots, control, degree, samples, radius = _spine()
     with pytest.raises(InputError, match=r"knots must hold n \+ degree \+ 1 = 13 values for 9 control points, got 12"):
-        write_spine_dxf(tmp_path / "spine.dxf", knots[:-1], control, degree, samples, radius)
+        write_spine_dxf(tmp_path / "spine.dxf", [(knots[:-1], control, degree, samples, radius)])
     assert list(tmp_path.iterdir()) == []
 
 
@@ -819,7 +827,7 @@ def test_spine_dxf_missing_extra(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ezdxf", None)
     _, knots, control, degree, samples, radius = _spine()
     with pytest.raises(InputError, match=r"writing \.dxf files needs the 'dxf' extra — pip install 'canalsurf\[dxf\]'"):
-        write_spine_dxf(tmp_path / "spine.dxf", knots, control, degree, samples, radius)
+        write_spine_dxf(tmp_path / "spine.dxf", [(knots, control, degree, samples, radius)])
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -104,7 +104,7 @@ def _sphere(n=2000, seed=0):
     pytest.param(lambda rng: rng.uniform(0, 1, (2000, 3)), id="noise-blob"),
 ])
 def test_not_a_tube_is_refused(cloud):
-    with pytest.raises(canalsurf.ReconstructionError, match="not"):
+    with pytest.raises(canalsurf.ReconstructionError, match="not a tube|no part of the cloud is a tube"):
         canalsurf.reconstruct(cloud(np.random.default_rng(0)))
 
 
@@ -130,3 +130,15 @@ def test_impossible_parameters_are_refused(kwargs, match):
     tube = canalsurf.make_tube("fig9-pipe", n=500)
     with pytest.raises(canalsurf.InputError, match=match):
         canalsurf.reconstruct(tube.points, **kwargs)
+
+
+@pytest.mark.parametrize("n", [600, 2000])
+def test_stored_normals_that_point_inward_are_flipped(n, caplog):
+    """A file whose normals point into the tube gives the same tube as with outward ones, and says so."""
+    tube = canalsurf.make_tube("fig9-pipe", n=n, rng=5)
+    outward = canalsurf.reconstruct(tube.points, normals=tube.normals)
+    with caplog.at_level("WARNING", logger="canalsurf"):
+        inward = canalsurf.reconstruct(tube.points, normals=-tube.normals)
+    assert "point into the tube" in caplog.text
+    assert inward.kind == outward.kind
+    assert inward.mean_radius == pytest.approx(outward.mean_radius, rel=1e-6)

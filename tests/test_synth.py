@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.interpolate import BSpline
+from scipy.spatial import cKDTree
 
 from canalsurf import synth
 from canalsurf.errors import InputError
@@ -218,3 +219,304 @@ def test_radius_too_steep_for_an_envelope(rng):
         synth.sample_tube(spine, steep, 100, 0.0, rng)
     points, normals = synth.sample_tube(spine, constant_spline(0.5), 100, 0.0, rng)
     assert points.shape == normals.shape == (100, 3)
+
+
+# --- hardening of make_tube ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"noise": float("nan")}, r"^noise must be a finite number, got nan$"),
+    ({"noise": float("inf")}, r"^noise must be a finite number, got inf$"),
+    ({"noise": "loud"}, r"^noise must be a number, got 'loud'$"),
+    ({"noise": 1e308}, r"^noise 1e\+308 is larger than the surface itself \(the diagonal of its bounding box is "
+                       r"[0-9.]+\); give a noise well below the radius$"),
+    ({"rng": "x"}, r"^rng must be None, a seed \(an integer >= 0\) or a numpy\.random\.Generator, got 'x'$"),
+    ({"rng": -1}, r"^rng must be None, a seed \(an integer >= 0\) or a numpy\.random\.Generator, got -1$"),
+    ({"rng": 1.5}, r"^rng must be None, a seed .* got 1\.5$"),
+    ({"n": 2.5}, r"^n must be a whole number of points, got 2\.5$"),
+    ({"n": "100"}, r"^n must be a whole number of points, got '100'$"),
+    ({"n": float("inf")}, r"^n must be a whole number of points, got inf$"),
+    ({"n": 99999999999999999999}, r"^n = 99999999999999999999 points would not fit in memory; at most "
+                                  r"20,000,000 can be generated at once$"),
+    ({"n": 1e20}, r"^n = 1e\+20 points would not fit in memory"),
+    ({"n": synth.MAX_SYNTH_POINTS + 1}, r"^n = 20000001 points would not fit in memory"),
+])
+def test_make_tube_refuses_bad_arguments_before_any_work(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        synth.make_tube("fig9-pipe", **kwargs)
+
+
+def test_make_tube_accepts_whole_floats_and_numpy_seeds():
+    a = synth.make_tube("helix", n=200.0, rng=np.int64(3))
+    b = synth.make_tube("helix", n=np.int32(200), rng=3)
+    assert a.points.shape == (200, 3)
+    np.testing.assert_array_equal(a.points, b.points)
+
+
+def test_make_tube_noise_up_to_the_size_of_the_surface_is_allowed():
+    assert synth.make_tube("fig9-pipe", n=100, noise=5.0).noise == 5.0
+
+
+#: First point of ``make_tube("fig9-pipe", n=5, rng=0)``: every seeded cloud made before the networks were
+#: added (the paper's tables, the benchmarks) must stay as it was.
+PINNED_FIG9_SEED0_FIRST = (0.04701795685566039, -0.8907894403761597, -7.3601232177568665)
+
+
+def test_seeded_clouds_are_as_before():
+    tube = synth.make_tube("fig9-pipe", n=5, rng=0)
+    np.testing.assert_allclose(tube.points[0], PINNED_FIG9_SEED0_FIRST, rtol=0, atol=1e-9)
+
+
+# --- networks ---------------------------------------------------------------------------------------------
+
+#: name -> (branches, junctions, connected networks) of every network.
+NETWORK_SHAPES = {"y-vessel": (3, 1, 1), "t-junction": (3, 1, 1), "tree": (7, 3, 1), "rack": (4, 0, 4),
+                  "crossing": (2, 0, 2), "floor-clutter": (1, 0, 1), "scene": (8, 1, 6), "plant": (23, 2, 19)}
+#: Default share of the points on clutter.
+DEFAULT_CLUTTER = {"floor-clutter": 0.3, "scene": 0.2, "plant": 0.2}
+#: Points of each test cloud (small enough for the brute-force checks).
+N_NETWORK = 6000
+#: Spine samples of the brute-force prefilter (the nearest is within half a step of any spine point).
+N_SPINE = 4001
+#: Refining samples of the brute-force envelope distance: a final step of 4e-5 in t, which finds the
+#: minimum to about 1e-7 r on these spines (the error is quadratic in the step).
+REFINE = 101
+
+
+def test_every_network_is_listed_and_documented():
+    assert list(synth.NETWORKS) == list(NETWORK_SHAPES)
+    assert not set(synth.NETWORKS) & set(synth.SURFACES)
+    assert all(callable(builder) and description for builder, description in synth.NETWORKS.values())
+
+
+@pytest.mark.parametrize("name", list(NETWORK_SHAPES))
+def test_network_layout(name):
+    net = synth.make_network(name, n=500, rng=0)
+    n_branches, n_junctions, n_components = NETWORK_SHAPES[name]
+    assert len(net.branches) == n_branches and net.junctions.shape == (n_junctions, 3)
+    assert len(net.components) == n_components
+    assert sorted(b for c in net.components for b in c) == list(range(n_branches))
+    assert net.components == sorted(sorted(c) for c in net.components)
+    listed = [j for b in net.branches for j in b.ends if j is not None]
+    assert sorted(set(listed)) == list(range(n_junctions))
+    for branch in net.branches:
+        assert isinstance(branch, synth.SyntheticBranch) and branch.spine.k == 3
+        for end, j in zip((0.0, 1.0), branch.ends):
+            if j is not None:
+                np.testing.assert_allclose(branch.spine(end), net.junctions[j], rtol=0, atol=1e-9)
+        # normalised arc length: constant speed, equal to the length
+        t = np.linspace(0.0, 1.0, 2001)
+        speed = np.linalg.norm(branch.spine.derivative()(t), axis=1)
+        length = np.linalg.norm(np.diff(branch.spine(t), axis=0), axis=1).sum()
+        np.testing.assert_allclose(speed, length, rtol=2e-3)
+        assert branch.radius(t).min() > 0
+    for j, junction in enumerate(net.junctions):
+        # A daughter starts at the junction, which lies on its parent's axis (the parent ends there or runs on).
+        assert sum(j in b.ends for b in net.branches) in (2, 3)
+        starting = [b for b in net.branches if b.ends[0] == j]
+        assert starting
+
+
+def _unit(v):
+    return v / np.linalg.norm(v)
+
+
+@pytest.mark.parametrize("name, side_angles", [("t-junction", [90.0]), ("tree", [55.0, 45.0, 50.0]),
+                                               ("scene", [90.0]), ("plant", [90.0, 90.0])])
+def test_split_pipes_run_on_through_their_junctions(name, side_angles):
+    """Where a pipe is split, its halves meet end to end with one tangent; the side branch leaves at its angle."""
+    net = synth.make_network(name, n=300, rng=0)
+    for j, expected in zip(range(len(net.junctions)), side_angles):
+        (before,) = [b for b in net.branches if b.ends[1] == j]
+        after, side = [b for b in net.branches if b.ends[0] == j]
+        axis = _unit(before.spine.derivative()(1.0))
+        assert _unit(after.spine.derivative()(0.0)) @ axis == pytest.approx(1.0, abs=1e-9)
+        angle = np.degrees(np.arccos(_unit(side.spine.derivative()(0.0)) @ axis))
+        assert angle == pytest.approx(expected, abs=1e-6)
+        assert before.radius(1.0) == pytest.approx(after.radius(0.0), abs=1e-12)
+        assert side.radius(0.0) < after.radius(0.0)
+
+
+def test_y_vessel_forks_at_two_different_angles():
+    net = synth.make_network("y-vessel", n=300, rng=0)
+    parent, first, second = net.branches
+    assert parent.ends == (None, 0) and first.ends == second.ends == (0, None)
+    axis = _unit(parent.spine.derivative()(1.0))
+    angles = [np.degrees(np.arccos(_unit(b.spine.derivative()(0.0)) @ axis)) for b in (first, second)]
+    np.testing.assert_allclose(angles, [25.0, 50.0], atol=1e-6)
+    np.testing.assert_allclose([parent.radius(0.0), parent.radius(1.0), first.radius(0.0), first.radius(1.0),
+                                second.radius(0.0), second.radius(1.0)], [1.0, 0.85, 0.75, 0.55, 0.65, 0.5])
+
+
+def test_rack_and_crossing_gaps():
+    """Neighbours in a rack are 1 - 2 smaller radii apart; the crossing pipes 0.75 r."""
+    rack = synth.make_network("rack", n=300, rng=0)
+    axes = [(b.spine(0.5), float(b.radius(0.5))) for b in rack.branches]
+    for (c0, r0), (c1, r1) in zip(axes, axes[1:]):
+        gap = np.linalg.norm(c1 - c0) - r0 - r1
+        assert 1.0 * min(r0, r1) <= gap <= 2.0 * min(r0, r1)
+    np.testing.assert_allclose([r for _, r in axes], [1.0, 1.5, 0.8, 2.0])
+    a, b = synth.make_network("crossing", n=300, rng=0).branches
+    da, db = _unit(a.spine(1.0) - a.spine(0.0)), _unit(b.spine(1.0) - b.spine(0.0))
+    assert da @ db == pytest.approx(0.0, abs=1e-12)
+    normal = _unit(np.cross(da, db))
+    assert abs((b.spine(0.0) - a.spine(0.0)) @ normal) == pytest.approx(2.75, abs=1e-9)
+
+
+def _other_tube_depth(points, branch, envelope_distance):
+    """Brute force ``min_t |P - C(t)| - r(t)`` of the points near ``branch`` (+inf for the others)."""
+    t = np.linspace(0.0, 1.0, N_SPINE)
+    samples, radii = branch.spine(t), branch.radius(t)
+    step = np.linalg.norm(np.diff(samples, axis=0), axis=1).max()
+    dist, _ = cKDTree(samples).query(points, distance_upper_bound=radii.max() + step)
+    near = np.isfinite(dist)
+    depth = np.full(len(points), np.inf)
+    if near.any():
+        depth[near] = envelope_distance(points[near], branch.spine, branch.radius, refine=REFINE)[0]
+    return depth
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("name", list(NETWORK_SHAPES))
+def test_network_points_lie_on_the_union_of_the_tubes(name, seed, envelope_distance):
+    """Noise-free: every tube point is on its branch's surface and outside every other tube; with noise,
+    the same points moved along their normals by at most noise x the local radius."""
+    quiet = synth.make_network(name, n=N_NETWORK, noise=0.0, rng=seed)
+    noisy = synth.make_network(name, n=N_NETWORK, rng=seed)
+    assert noisy.noise == 0.02 and quiet.noise == 0.0
+    for net in (quiet, noisy):
+        assert net.points.shape == net.normals.shape == (N_NETWORK, 3) and net.label.shape == (N_NETWORK,)
+        assert np.isfinite(net.points).all() and net.label.dtype.kind == "i"
+        np.testing.assert_allclose(np.linalg.norm(net.normals, axis=1), 1.0, atol=1e-12)
+        assert net.label.min() >= -1 and net.label.max() < len(net.branches)
+        assert net.clutter.sum() == round(DEFAULT_CLUTTER.get(name, 0.0) * N_NETWORK)
+        np.testing.assert_array_equal(net.clutter, net.label == -1)
+    np.testing.assert_array_equal(quiet.label, noisy.label)
+    np.testing.assert_array_equal(quiet.normals, noisy.normals)
+    offset = np.einsum("ij,ij->i", noisy.points - quiet.points, quiet.normals)
+    np.testing.assert_allclose(noisy.points, quiet.points + offset[:, None] * quiet.normals, rtol=0, atol=1e-12)
+
+    scale = np.empty(N_NETWORK)
+    for b, branch in enumerate(quiet.branches):
+        mine = quiet.label == b
+        assert mine.sum() >= 10, f"branch {b} got {mine.sum()} points"
+        dist, t = envelope_distance(quiet.points[mine], branch.spine, branch.radius, refine=REFINE)
+        assert np.abs(dist).max() <= 1e-6 * branch.radius(0.5)
+        scale[mine] = branch.radius(t)
+        depth = _other_tube_depth(quiet.points[~mine], branch, envelope_distance)
+        assert depth.min() >= -1e-6 * branch.radius(np.linspace(0, 1, 64)).max()
+        noisy_dist, _ = envelope_distance(noisy.points[mine], branch.spine, branch.radius, refine=REFINE)
+        assert np.abs(noisy_dist).max() <= noisy.noise * scale[mine].max() + 1e-6
+        np.testing.assert_array_less(np.abs(noisy_dist), noisy.noise * scale[mine] + 1e-6)
+    clutter = quiet.clutter
+    if clutter.any():
+        scale[clutter] = np.median([np.mean(b.radius(np.linspace(0, 1, 64))) for b in quiet.branches])
+        # faces of a floor or of axis-aligned boxes
+        assert np.all(np.isin(np.round(np.abs(quiet.normals[clutter]).max(axis=1), 12), [1.0]))
+        assert np.all(quiet.normals[clutter][:, 2] >= 0)
+        # the tubes stand clear of the floor and the boxes (by a radius or more)
+        assert cKDTree(quiet.points[clutter]).query(quiet.points[~clutter])[0].min() >= 0.9
+    assert np.all(np.abs(offset) <= noisy.noise * scale * (1 + 1e-9))
+    assert np.abs(offset).max() >= 0.9 * noisy.noise * scale[np.argmax(np.abs(offset))]
+
+
+@pytest.mark.parametrize("name", ["t-junction", "tree"])
+def test_no_gap_where_the_halves_of_a_split_pipe_meet(name):
+    """The circle where two halves meet is on both surfaces: the points next to it are kept (a band of
+    +-0.02 around it, away from the side branch, holds about 14 - 20 points at this density)."""
+    net = synth.make_network(name, n=20000, noise=0.0, rng=4)
+    for j, junction in enumerate(net.junctions):
+        (a,) = [b for b, branch in enumerate(net.branches) if branch.ends[1] == j]
+        after, side = [b for b, branch in enumerate(net.branches) if branch.ends[0] == j]
+        axis = _unit(net.branches[a].spine.derivative()(1.0))
+        away = net.branches[side].spine(0.2) - junction
+        rel = net.points - junction
+        band = (np.isin(net.label, [a, after]) & (np.abs(rel @ axis) < 0.02) & (rel @ away < 0))
+        assert band.sum() >= 5, (j, band.sum())
+
+
+def test_network_density_is_uniform_by_area():
+    """On the rack nothing is removed: each pipe gets its share of the points by area (4 sigma)."""
+    net = synth.make_network("rack", n=N_NETWORK, rng=3)
+    area = np.array([2 * np.pi * float(b.radius(0.5)) * 20.0 for b in net.branches])
+    expected = N_NETWORK * area / area.sum()
+    np.testing.assert_array_less(np.abs(np.bincount(net.label) - expected), 4 * np.sqrt(expected))
+
+
+def test_floor_clutter_geometry():
+    net = synth.make_network("floor-clutter", n=N_NETWORK, noise=0.0, rng=1)
+    (pipe,) = net.branches
+    clutter = net.points[net.clutter]
+    up = net.normals[net.clutter][:, 2] == 1.0
+    floor = clutter[up & (clutter[:, 2] < 1.0)]
+    np.testing.assert_allclose(floor[:, 2], 0.0, atol=1e-12)
+    t = np.linspace(0.0, 1.0, N_SPINE)
+    spine = pipe.spine(t)
+    assert spine[:, 2].min() - 1.0 == pytest.approx(1.0)  # the pipe's bottom one radius above the floor
+    box = clutter[~up | (clutter[:, 2] > 1.0)]
+    np.testing.assert_allclose(np.ptp(box, axis=0), 3.0, atol=0.05)
+    assert cKDTree(spine).query(box)[0].min() - 1.0 >= 1.5  # 1.5 radii between box and pipe
+    # the floor reaches a few radii beyond the pipe and the box
+    assert (floor.min(axis=0)[:2] <= np.minimum(spine.min(axis=0), box.min(axis=0))[:2] - 2).all()
+    assert (floor.max(axis=0)[:2] >= np.maximum(spine.max(axis=0), box.max(axis=0))[:2] + 2).all()
+
+
+@pytest.mark.parametrize("clutter", [0.0, 0.25, 0.9])
+def test_clutter_share_can_be_set(clutter):
+    net = synth.make_network("t-junction", n=1001, clutter=clutter, rng=2)
+    assert abs(net.clutter.sum() - clutter * 1001) <= 1
+    if clutter:  # a floor is added below the network, flat and facing up
+        below = net.points[net.clutter]
+        assert np.ptp(below[:, 2]) <= 2 * net.noise * 1.0 + 1e-12
+        assert below[:, 2].max() < net.points[~net.clutter][:, 2].min()
+    assert synth.make_network("scene", n=1000, clutter=0.0, rng=2).clutter.sum() == 0
+
+
+def test_plant_size_multiplies_the_tubes():
+    small = synth.make_network("plant", n=2000, rng=0)
+    large = synth.make_network("plant", n=2000, rng=0, size=10)
+    assert len(small.branches) >= 20 and len(large.branches) >= 200
+    assert len(large.branches) == 10 * len(small.branches)
+    assert len(large.junctions) == 10 * len(small.junctions)
+    elbows = [b for b in small.branches if b.ends == (None, None)
+              and not np.allclose(b.spine(0.5), (b.spine(0.0) + b.spine(1.0)) / 2)]
+    assert len(elbows) == 2  # the bent runs (every other branch is straight)
+    radii = sorted({round(float(b.radius(0.5)), 6) for b in small.branches})
+    assert radii[0] <= 0.5 and radii[-1] >= 2.0
+
+
+@pytest.mark.parametrize("name", ["tree", "scene"])
+def test_network_same_seed_same_cloud(name):
+    a = synth.make_network(name, n=2000, rng=7)
+    b = synth.make_network(name, n=2000, rng=np.random.default_rng(7))
+    for field in ("points", "normals", "label"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert not np.array_equal(a.points, synth.make_network(name, n=2000, rng=8).points)
+    np.testing.assert_array_equal(synth.make_network(name, n=500).points,
+                                  synth.make_network(name, n=500, rng=0).points)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"name": "knot"}, r"^network name must be one of 'y-vessel', 't-junction', 'tree', 'rack', 'crossing', "
+                       r"'floor-clutter', 'scene', 'plant', got 'knot'$"),
+    ({"n": 0}, r"^n must be a positive number of points, got 0$"),
+    ({"n": 10.5}, r"^n must be a whole number of points, got 10\.5$"),
+    ({"n": 99999999999999999999}, r"^n = 99999999999999999999 points would not fit in memory; at most "
+                                  r"20,000,000 can be generated at once$"),
+    ({"noise": float("nan")}, r"^noise must be a finite number, got nan$"),
+    ({"noise": 0.5}, r"^noise must be a share of the radius in \[0, 0\.5\), got 0\.5$"),
+    ({"noise": -0.01}, r"^noise must be a share of the radius in \[0, 0\.5\), got -0\.01$"),
+    ({"noise": 1e308}, r"^noise must be a share of the radius in \[0, 0\.5\), got 1e\+308$"),
+    ({"clutter": 0.95}, r"^clutter must be a share of the points in \[0, 0\.9\], got 0\.95$"),
+    ({"clutter": -0.1}, r"^clutter must be a share of the points in \[0, 0\.9\], got -0\.1$"),
+    ({"clutter": float("nan")}, r"^clutter must be a finite number, got nan$"),
+    ({"rng": "x"}, r"^rng must be None, a seed \(an integer >= 0\) or a numpy\.random\.Generator, got 'x'$"),
+    ({"rng": -1}, r"^rng must be None, a seed \(an integer >= 0\) or a numpy\.random\.Generator, got -1$"),
+    ({"size": 2}, r"^the 't-junction' network has no option 'size'; it takes none$"),
+    ({"name": "plant", "size": 0}, r"^size must be a whole number of bays in \[1, 100\], got 0$"),
+    ({"name": "plant", "size": 1.5}, r"^size must be a whole number of bays in \[1, 100\], got 1\.5$"),
+    ({"name": "plant", "bays": 2}, r"^the 'plant' network has no option 'bays'; it takes size$"),
+])
+def test_make_network_refuses_bad_arguments(kwargs, match):
+    kwargs = {"name": "t-junction", "n": 100} | kwargs
+    with pytest.raises(InputError, match=match):
+        synth.make_network(kwargs.pop("name"), **kwargs)

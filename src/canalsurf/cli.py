@@ -10,10 +10,19 @@ Subcommands
     ``paper``        reproduce the paper's experiments (:mod:`canalsurf.experiments`).
 
 Exit codes
-    0 success; 1 a reconstruction failed (:class:`ReconstructionError`); 2 bad input, bad output path or
-    bad usage (:class:`InputError`, ``OSError`` on output, argparse errors); 130 interrupted.
-    With several inputs the code is the highest of the failures'.  Every expected failure prints one
-    line ``canalsurf: error: <what> — <what to do>`` to stderr, never a traceback.
+    0 success; 1 a reconstruction failed (:class:`ReconstructionError`, or an unexpected internal
+    error, reported as ``internal error (<type>: <message>) — please report it``, with its traceback
+    under ``-v``); 2 bad input, bad output path or bad usage (:class:`InputError`, ``OSError`` on
+    output, argparse errors); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), see
+    :mod:`canalsurf._interrupt`.  With several inputs each succeeds or fails on its own and the code
+    is the highest of the failures'.  Every failure prints one line
+    ``canalsurf: error: <what> — <what to do>`` to stderr, never a traceback.
+
+Outputs
+    Each result folder is written as one unit, under a lock (:mod:`canalsurf._outputs`); files an
+    earlier run wrote there and this run does not write (report.html without ``--report``) are
+    removed.  Folder names made from input names are made safe (no ``..``, separators or names
+    Windows reserves) and every folder is checked to lie inside ``-o``.
 """
 
 from __future__ import annotations
@@ -26,9 +35,7 @@ import json
 import logging
 import math
 import os
-import shutil
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Callable
@@ -37,6 +44,11 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from ._interrupt import INTERRUPTED
+from ._outputs import check_output_folder as _check_output_folder
+from ._outputs import make_dirs as _make_dirs
+from ._outputs import remove_dirs as _remove_dirs
+from ._outputs import write_files as _write_files
 from .errors import CanalsurfError, InputError, ReconstructionError
 from .io import POINT_WRITE_FORMATS, write_points
 
@@ -49,6 +61,10 @@ PROG = "canalsurf"
 EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: The built-in example of ``canalsurf demo``: the paper's Figure 9 pipe, as the paper sampled it.
 DEMO_SURFACE, DEMO_POINTS, DEMO_SEED, DEMO_OUTDIR = "fig9-pipe", 2000, 0, "canalsurf-demo"
+#: Largest length (-R, --delta, -H) accepted, in the input's units.  float64 keeps about 16 significant
+#: digits, so coordinates near 1e15 have no digit left below 0.1 units: no scan measures lengths
+#: beyond this, and anything larger is a typo (1e308 overflows as soon as it is squared).
+MAX_LENGTH = 1e15
 #: Mesh formats offered by ``--mesh-format`` (suffixes of :data:`canalsurf.io.MESH_FORMATS`).
 MESH_CHOICES = ("ply", "obj", "stl", "glb", "off")
 #: Point formats ``canalsurf synth`` writes: suffix -> family.
@@ -69,6 +85,12 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):  # noqa: D102 -- argparse hook
         raise _UsageError(" ".join(str(message).split()), self.prog)
 
+    def _get_values(self, action, arg_strings):  # noqa: D102 -- argparse hook
+        # '-k=--': argparse (3.11, 3.12) drops the '--' and stores an empty list, unconverted
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            self.error(f"argument {'/'.join(action.option_strings)}: expected one argument, got '--'")
+        return super()._get_values(action, arg_strings)
+
 
 # --------------------------------------------------------------------------------------------------
 # argument parsing
@@ -86,12 +108,24 @@ def _number(kind: type, *, low: float | None = None, high: float | None = None, 
         if not math.isfinite(value) or (low is not None and (value <= low if strict else value < low)) \
                 or (high is not None and value > high):
             raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        if value and abs(value) < sys.float_info.min:  # subnormal: most digits lost, 1/value overflows
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}, too small to compute with "
+                                             f"(below {sys.float_info.min:.4g})")
         return value
 
     return convert
 
 
-_POSITIVE = _number(float, low=0.0, strict=True, what="a positive number")
+_LENGTH = _number(float, low=0.0, strict=True, high=MAX_LENGTH,
+                  what=f"a positive length up to {MAX_LENGTH:g}")
+
+
+def _output_folder(text: str) -> Path:
+    """argparse ``type=`` for an output folder: an empty path would mean the current folder."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected a folder, got {text!r} (for the current folder "
+                                         "give '-o .')")
+    return Path(text)
 
 
 def _add_global_options(parser: argparse.ArgumentParser, *, in_subcommand: bool) -> None:
@@ -126,8 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf reconstruct *.las -o results/ -v     # one folder per input, with a log\n"
                "  canalsurf synth fig14-canal -o canal.ply       # a test cloud\n"
                "  canalsurf synth --list\n\n"
-               "exit codes: 0 success, 1 reconstruction failed (not a tube), 2 bad input, output path or "
-               "usage.\nRun 'canalsurf COMMAND --help' for the options of a command.")
+               "exit codes: 0 success, 1 reconstruction failed (not a tube) or an internal error, 2 bad "
+               "input, output path or usage, 130/143 interrupted (Ctrl-C / SIGTERM).\n"
+               "Run 'canalsurf COMMAND --help' for the options of a command.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     _add_global_options(parser, in_subcommand=False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, title="commands")
@@ -144,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf demo -o /tmp/demo -v      # also log the parameters chosen\n"
                "  canalsurf demo --report             # also write canalsurf-demo/report.html\n"
                "  canalsurf reconstruct canalsurf-demo/input.ply -o again/   # the same, from the file")
-    p.add_argument("-o", "--output", metavar="DIR", type=Path, default=Path(DEMO_OUTDIR),
+    p.add_argument("-o", "--output", metavar="DIR", type=_output_folder, default=Path(DEMO_OUTDIR),
                    help=f"folder for input.ply and the results (default: {DEMO_OUTDIR})")
     p.add_argument("--report", action="store_true",
                    help="also write DIR/report.html, a self-contained page with a 3-D view, the radius "
@@ -158,15 +193,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "reconstruct", formatter_class=fmt, help="reconstruct pipe/canal models from point files",
-        description="Reconstruct a pipe or canal surface from each INPUT and write into OUTDIR:\n"
-                    "  model.json      spine B-spline, radius, samples, parameters used, diagnostics\n"
-                    "  surface.<fmt>   triangle mesh of the surface (watertight: ends capped)\n"
-                    "  spine.csv       t,x,y,z,radius at points evenly spaced along the spine\n"
-                    "  spine.dxf       the spine as a CAD SPLINE with radii (needs ezdxf; skipped "
+        description="Reconstruct the pipe and canal surfaces in each INPUT -- one tube, or a network of "
+                    "branches\nmeeting at junctions; points on no tube are left out -- and write into OUTDIR:\n"
+                    "  model.json      per branch spine B-spline, radius, samples, ends; junctions; "
+                    "parameters, diagnostics\n"
+                    "  surface.<fmt>   triangle mesh (watertight: tubes united at junctions, ends capped)\n"
+                    "  spine.csv       branch,t,x,y,z,radius at points evenly spaced along each spine\n"
+                    "  spine.dxf       each spine as a CAD SPLINE with radii (needs ezdxf; skipped "
                     "without)\n"
                     "  report.html     with --report: one self-contained page (works offline) with a 3-D "
-                    "view of\n                  points, spine and surface, the radius, the stages and "
-                    "the parameters\n"
+                    "view of\n                  points, spines, junctions and surface, the radii, the "
+                    "stages and the parameters\n"
+                    "  points.ply      with --labels: the input points with their branch (-1: on no tube) "
+                    "and signed distance\n"
                     "With one INPUT the files go into OUTDIR itself, with several into "
                     "OUTDIR/<input name>/.\nAn input that fails is reported and the others go on; "
                     "nothing is written for it.\n\n"
@@ -180,20 +219,22 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf reconstruct scan.e57 -o out/ --json > summary.jsonl\n"
                "  canalsurf reconstruct scan.ply -o out/ --report  # and out/report.html\n\n"
                "exit codes: 0 all inputs succeeded; otherwise the highest of the failures' codes "
-               "(2 bad input, 1 reconstruction failed).")
+               "(2 bad input, 1 reconstruction failed or an internal error); 130/143 interrupted.\n"
+               "A run into a folder removes the files an earlier run wrote there and it does not write "
+               "again\n(report.html without --report); other files are left alone.")
     p.add_argument("inputs", nargs="+", metavar="INPUT", type=Path, help="point cloud file(s)")
-    p.add_argument("-o", "--output", metavar="OUTDIR", type=Path, required=True,
+    p.add_argument("-o", "--output", metavar="OUTDIR", type=_output_folder, required=True,
                    help="output folder (created if needed)")
     g = p.add_argument_group("method (the paper's parameters; default: chosen from the data)")
     g.add_argument("--kind", choices=("auto", "pipe", "canal"), default="auto",
                    help="pipe: constant radius; canal: radius varies along the spine; auto (default): "
                         "a canal only if a varying radius fits clearly better")
-    g.add_argument("-R", "--R", dest="R", type=_POSITIVE, metavar="R",
+    g.add_argument("-R", "--R", dest="R", type=_LENGTH, metavar="R",
                    help="neighbour radius of the shrinking, in the input's units (default: "
                         f"{C.R_PER_RADIUS:g} x the first radius estimate, at least "
                         f"{C.R_PER_COLLAPSED_SPACING:g} x the spacing of the collapsed points); "
                         "larger if shrinking does not stop")
-    g.add_argument("--delta", type=_POSITIVE,
+    g.add_argument("--delta", type=_LENGTH,
                    help=f"shrink step, input units (default: {C.DELTA_PER_RADIUS:.3g} x the first radius "
                         "estimate); smaller is more precise and slower")
     g.add_argument("--mu", type=_number(float, low=0, high=1, what="a number in [0, 1]"),
@@ -202,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{C.MU_CANAL_AUTO:g})")
     g.add_argument("--tau", type=_number(float, low=-1, high=1, what="a number in [-1, 1]"),
                    help=f"canal: cosine tolerance of the normal test (default {C.TAU:.4g} = cos 80°)")
-    g.add_argument("-H", "--H", dest="H", type=_POSITIVE, metavar="H",
+    g.add_argument("-H", "--H", dest="H", type=_LENGTH, metavar="H",
                    help="weighting radius of the MLS thinning, input units (default: "
                         f"{C.H_PER_RADIUS:g} x the first radius estimate)")
     g.add_argument("-k", type=_number(int, low=3, what="an integer >= 3"),
@@ -223,48 +264,83 @@ def build_parser() -> argparse.ArgumentParser:
                    help="close the ends of an open tube so the mesh is watertight (default); "
                         "--no-caps leaves them open")
     g.add_argument("--report", action="store_true",
-                   help="also write report.html: a self-contained page (no network needed) with a 3-D "
-                        "view of the points coloured by their distance from the surface, the radius "
-                        "along the spine, the stages and the parameters (needs the 'report' extra: "
-                        "pip install 'canalsurf[report]')")
+                   help="also write report.html: a self-contained page (works offline) with a 3-D "
+                        "view of the points coloured by branch (grey: on no tube) or by their distance "
+                        "from the surface, the junctions, the radius along each branch, the stages and "
+                        "the parameters (needs the 'report' extra: pip install 'canalsurf[report]')")
+    g.add_argument("--labels", action="store_true",
+                   help="also write points.ply: the input points with the branch each lies on (-1: on "
+                        "no tube) and its signed distance from the surface, to colour or split the scan")
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_reconstruct)
 
     # synth -----------------------------------------------------------------------------------------
-    from .synth import SURFACES
+    from .synth import NETWORKS, SURFACES, make_network
+
+    def whole(low: int, what: str) -> Callable[[str], int]:
+        """argparse ``type=`` for an integer >= ``low`` of any size (never converted to float, so a huge
+        one cannot overflow; make_tube / make_network refuse one too large for memory)."""
+
+        def convert(text: str) -> int:
+            shown = text if len(text) <= 40 else f"{text[:20]}...{text[-10:]}"  # not 5000 digits back
+            try:
+                value = int(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"expected {what}, got {shown!r}") from None
+            if value < low:
+                raise argparse.ArgumentTypeError(f"expected {what}, got {shown!r}")
+            return value
+
+        return convert
 
     p = sub.add_parser(
-        "synth", formatter_class=fmt, help="write a sampled test surface (the paper's and others)",
+        "synth", formatter_class=fmt, help="write a sampled test surface or tube network",
         description="Sample one of the built-in surfaces with a uniform random offset along the normal "
-                    "(the paper's epsilon) and write the points.  The format follows FILE's suffix: "
-                    f"{' '.join(POINT_WRITE_FORMATS)}.\n\nSurfaces: {', '.join(SURFACES)} "
-                    "(see --list).",
+                    "(the paper's epsilon), or one of the tube networks (branches joined at junctions, "
+                    "racks, crossings, clutter; noise relative to the radius), and write the points.  The "
+                    f"format follows FILE's suffix: {' '.join(POINT_WRITE_FORMATS)}.\n\n"
+                    f"Surfaces: {', '.join(SURFACES)}.\nNetworks: {', '.join(NETWORKS)} (see --list).",
         epilog="examples:\n"
                "  canalsurf synth --list\n"
                "  canalsurf synth fig9-pipe -o pipe.ply\n"
                "  canalsurf synth torus -o torus.xyz --n 5000 --noise 0 --seed 3 --normals\n"
-               "  canalsurf synth elbow -o scan.ply --arc 200 --outliers 0.05   # as a scanner sees it")
-    p.add_argument("name", nargs="?", metavar="NAME", choices=tuple(SURFACES), help="surface to sample")
+               "  canalsurf synth elbow -o scan.ply --arc 200 --outliers 0.05   # as a scanner sees it\n"
+               "  canalsurf synth t-junction -o tee.ply --noise 0.01 --clutter 0.2   # a network on a floor\n"
+               "  canalsurf synth plant -o plant.ply --n 1000000 --size 10")
+    p.add_argument("name", nargs="?", metavar="NAME", choices=(*SURFACES, *NETWORKS),
+                   help="surface or network to sample")
     p.add_argument("-o", "--output", metavar="FILE", type=Path, help="point file to write")
-    p.add_argument("--list", action="store_true", help="list the surfaces and exit")
-    p.add_argument("--n", type=_number(int, low=1, what="a positive integer"), default=DEMO_POINTS,
-                   help=f"number of points (default {DEMO_POINTS}, as in the paper)")
+    p.add_argument("--list", action="store_true", help="list the surfaces and networks and exit")
+    p.add_argument("--n", type=whole(1, "a positive integer"),
+                   help=f"number of points (default {DEMO_POINTS} for a surface, as in the paper; "
+                        f"{make_network.__kwdefaults__['n']} for a network, clutter included)")
     p.add_argument("--noise", type=_number(float, low=0, what="a number >= 0"),
-                   help="half-width of the offset along the normal (default: the paper's value for NAME)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--sampling", choices=("area", "parameter"), default="area",
+                   help="half-width of the offset along the normal: for a surface in its units (default: "
+                        "the paper's value for NAME); for a network RELATIVE to the local radius, below 0.5 "
+                        f"(default {make_network.__kwdefaults__['noise']:g}: ±2 %% of the radius)")
+    p.add_argument("--seed", type=whole(0, "a non-negative integer"), default=0,
+                   help="random seed, an integer >= 0 (default 0)")
+    p.add_argument("--normals", action="store_true", help="also write the true normals (nx, ny, nz)")
+    g = p.add_argument_group("surfaces only")
+    g.add_argument("--sampling", choices=("area", "parameter"), default="area",
                    help="uniform by surface area (default, like a scanner) or uniform in the surface "
                         "parameters (s, t), as the paper most likely sampled")
-    p.add_argument("--gaussian", action="store_true",
+    g.add_argument("--gaussian", action="store_true",
                    help="Gaussian offsets with standard deviation --noise instead of uniform ones")
-    p.add_argument("--arc", type=_number(float, low=0, high=360, strict=True, what="degrees in (0, 360]"), default=360.0,
+    g.add_argument("--arc", type=_number(float, low=0, high=360, strict=True, what="degrees in (0, 360]"), default=360.0,
                    help="degrees of each cross-section the scan sees, facing one side (default 360; "
                         "180-270 for a one-sided scan)")
-    p.add_argument("--outliers", type=_number(float, low=0, high=0.99, what="a share in [0, 0.99]"), default=0.0,
+    g.add_argument("--outliers", type=_number(float, low=0, high=0.99, what="a share in [0, 0.99]"), default=0.0,
                    help="share of the points that are stray, uniform in the bounding box (default 0)")
-    p.add_argument("--density-ratio", type=_number(float, low=1, what="a number >= 1"), default=1.0,
+    g.add_argument("--density-ratio", type=_number(float, low=1, what="a number >= 1"), default=1.0,
                    help="density falls by this factor from one end of the spine to the other (default 1)")
-    p.add_argument("--normals", action="store_true", help="also write the true normals (nx, ny, nz)")
+    g = p.add_argument_group("networks only")
+    g.add_argument("--clutter", metavar="SHARE", type=_number(float, low=0, high=0.9, what="a share in [0, 0.9]"),
+                   help="share of the points on clutter: floor and boxes (default: the network's own, 0.3 for "
+                        "floor-clutter, 0.2 for scene and plant, else 0; above 0 a network without clutter "
+                        "gets a floor under it)")
+    g.add_argument("--size", type=whole(1, "a positive integer"),
+                   help="plant only: number of bays of 23 tubes each (default 1)")
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_synth)
 
@@ -276,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n"
                "  canalsurf paper -o docs/paper\n"
                "  canalsurf paper -o /tmp/paper --seeds 3 -v")
-    p.add_argument("-o", "--output", metavar="OUTDIR", type=Path, required=True, help="output folder")
+    p.add_argument("-o", "--output", metavar="OUTDIR", type=_output_folder, required=True,
+                   help="output folder")
     p.add_argument("--seeds", type=_number(int, low=1, what="a positive integer"), default=10,
                    help="random seeds per experiment (default 10)")
     _add_global_options(p, in_subcommand=True)
@@ -417,81 +494,7 @@ class _StageBar:
 
 
 # --------------------------------------------------------------------------------------------------
-# writing a set of files all-or-nothing
-
-
-def _make_dirs(folder: Path) -> list[Path]:
-    """Create ``folder`` and its missing parents; return those created (outermost first).
-
-    Raises
-    ------
-    InputError
-        A path component exists but is not a folder.
-    OSError
-        The folder cannot be created (permissions, ...); whatever was created is removed again.
-    """
-    missing = []
-    probe = folder
-    while not probe.exists() and probe != probe.parent:
-        missing.append(probe)
-        probe = probe.parent
-    if not probe.is_dir():
-        raise InputError(f"{folder}: cannot create this folder, {probe} is a file — "
-                         "choose another output folder")
-    created = []
-    try:
-        for path in reversed(missing):
-            path.mkdir()
-            created.append(path)
-    except BaseException:
-        _remove_dirs(created)
-        raise
-    return created
-
-
-def _remove_dirs(created: list[Path]) -> None:
-    """Remove folders made by :func:`_make_dirs`, innermost first, if they are empty."""
-    for path in reversed(created):
-        with contextlib.suppress(OSError):
-            path.rmdir()
-
-
-def _check_output_folder(folder: Path) -> None:
-    """Fail before any work if ``folder`` can never be created (a file stands in the way)."""
-    probe = folder
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise InputError(f"{folder}: cannot create this folder, {probe} is a file — "
-                         "choose another output folder")
-
-
-def _write_files(folder: Path, files: dict[str, Callable[[Path], None]]) -> list[Path]:
-    """Write ``files`` (name -> ``write(path)``) into ``folder``, all or nothing.
-
-    The folder (and missing parents) is created only now; every file is first written into a hidden
-    staging folder inside it and moved into place once all have succeeded.  On failure the staging
-    folder, and any folder created here, are removed, and earlier files of the same names are left
-    untouched.
-    """
-    for name in files:
-        if (folder / name).is_dir():
-            raise InputError(f"{folder / name}: is a folder — remove it or choose another output folder")
-    created = _make_dirs(folder)
-    staging = None
-    try:
-        staging = Path(tempfile.mkdtemp(prefix=".canalsurf-", dir=folder))
-        for name, write in files.items():
-            write(staging / name)
-        for name in files:
-            os.replace(staging / name, folder / name)
-        staging.rmdir()
-    except BaseException:
-        if staging is not None:
-            shutil.rmtree(staging, ignore_errors=True)
-        _remove_dirs(created)
-        raise
-    return [folder / name for name in files]
+# writing: a set of files all-or-nothing, under a lock (canalsurf._outputs)
 
 
 def _output_error(exc: OSError, folder: Path) -> InputError:
@@ -524,10 +527,12 @@ def _dxf_available() -> bool:
 
 
 def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_points=None,
-                  source: str | None = None) -> dict[str, Callable]:
+                  source: str | None = None, label_points=None) -> dict[str, Callable]:
     """Everything a reconstruction writes, computed now; name -> ``write(path)`` callables.
 
-    With ``report_points`` (the input points) the files include ``report.html`` about ``source``.
+    With ``report_points`` (the input points) the files include ``report.html`` about ``source``;
+    with ``label_points`` (the input points) ``points.ply``, each point with its branch id (-1: on no
+    tube) and its signed distance from the surface.
 
     Raises
     ------
@@ -536,25 +541,30 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
     InputError
         ``report_points`` are given and the 'report' extra is missing.
     """
-    from .io import write_json, write_mesh, write_spine_csv, write_spine_dxf
-    from .surface import surface_mesh
+    from .io import write_json, write_labelled_points, write_mesh, write_spine_csv, write_spine_dxf
+    from .network import network_mesh
 
     data = model.to_dict()
     try:
-        vertices, faces = surface_mesh(model.spine, model.radius, closed=model.closed, caps=caps)
+        vertices, faces = network_mesh(model, caps=caps)
     except InputError as exc:
         raise ReconstructionError(f"the reconstructed surface cannot be meshed: {exc} — "
                                   "try --kind pipe or a larger -H") from None
-    samples = data["samples"]
-    t, points, radius = (np.asarray(samples[key], dtype=float) for key in ("t", "points", "radius"))
+    samples = [(b["id"], *(np.asarray(b["samples"][key], dtype=float) for key in ("t", "points", "radius")))
+               for b in data["branches"]]
+    branch = np.concatenate([np.full(len(t), i) for i, t, _, _ in samples])
+    t, points, radius = (np.concatenate([s[k] for s in samples]) for k in (1, 2, 3))
     files = {
         "model.json": lambda path: write_json(path, data),
         f"surface.{mesh_format}": lambda path: write_mesh(path, vertices, faces),
-        "spine.csv": lambda path: write_spine_csv(path, t, points, radius),
+        "spine.csv": lambda path: write_spine_csv(path, t, points, radius, branch),
     }
     if _dxf_available():
-        spine = model.spine
-        files["spine.dxf"] = lambda path: write_spine_dxf(path, spine.t, spine.c, spine.k, points, radius)
+        splines = [(b.spine.t, b.spine.c, b.spine.k, s[2], s[3]) for b, s in zip(model.branches, samples)]
+        files["spine.dxf"] = lambda path: write_spine_dxf(path, splines)
+    if label_points is not None:
+        label, distance = model.classify(label_points)
+        files["points.ply"] = lambda path: write_labelled_points(path, label_points, label, distance)
     if report_points is not None:
         from .report import render_report
 
@@ -584,10 +594,9 @@ def _reconstruct_cloud(points, normals, label: str, options: dict, console: _Con
     with _StageBar(label, console) as bar, _warnings_to_log():
         model = reconstruct(points, normals=normals, progress=bar, **options)
     d = model.diagnostics
-    log.info("%s: %s, mean radius %.6g, %s spine; shrinking stopped by %s after %s moves; "
-             "RMS residual %.4g", label, model.kind, model.mean_radius,
-             "closed" if model.closed else "open", d.get("stop_rule"), d.get("iterations"),
-             d.get("rms_residual", float("nan")))
+    log.info("%s: %s; shrinking stopped by %s after %s moves; RMS residual of the points on a tube %.4g",
+             label, _describe(model), d.get("stop_rule"), d.get("iterations"),
+             d.get("inlier_rms_residual") or float("nan"))
     seconds = d.get("seconds", {})
     log.info("%s: timings %s; total %.2f s", label,
              ", ".join(f"{k} {v:.2f} s" for k, v in seconds.items()), time.perf_counter() - start)
@@ -596,17 +605,76 @@ def _reconstruct_cloud(points, normals, label: str, options: dict, console: _Con
 
 def _summary(label, folder, model, files) -> dict:
     data = model.to_dict()
-    return {"input": label, "outdir": str(folder), "kind": model.kind, "closed": bool(model.closed),
-            "radius": model.mean_radius, "parameters": data["parameters"],
+    branches = [{"id": b.id, "kind": b.kind, "closed": bool(b.closed), "radius": b.mean_radius,
+                 "length": _spine_length(b), "ends": list(b.ends)} for b in model.branches]
+    return {"input": label, "outdir": str(folder), "branches": branches,
+            "junctions": len(model.junctions), "components": model.components,
+            "parameters": data["parameters"],
             "diagnostics": {**data["diagnostics"], "seconds": model.diagnostics.get("seconds", {})},
             "files": [str(f) for f in files]}
 
 
+def _radius_text(branch) -> str:
+    """``radius 1`` for a pipe; ``radius mean 1.68 (1.12-2.25)`` for a canal."""
+    if branch.kind == "pipe":
+        return f"radius {branch.mean_radius:.6g}"
+    r = branch.sample()[1]
+    return f"radius mean {branch.mean_radius:.6g} ({r.min():.6g}-{r.max():.6g})"
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _describe(model) -> str:
+    """One line about a network: the tube itself when it is one, else its branches and junctions."""
+    if len(model.branches) == 1:
+        b = model.branches[0]
+        text = (f"{b.kind}, {_radius_text(b)}, {'closed' if b.closed else 'open'} spine of length "
+                f"{_spine_length(b):.6g}")
+    else:
+        kinds = [b.kind for b in model.branches]
+        text = (f"{len(kinds)} branches ({_count(kinds.count('pipe'), 'pipe')}, "
+                f"{_count(kinds.count('canal'), 'canal')}), {_count(len(model.junctions), 'junction')}, "
+                f"{_count(len(model.components), 'separate network')}")
+    share = model.diagnostics.get("no_tube_share")
+    if share:
+        text += f"; {share:.1%} of the points on no tube"
+    return text
+
+
+#: Characters that cannot be in a folder name on some system: separators, Windows' reserved ones.
+_UNSAFE_CHARS = frozenset('/\\:*?"<>|')
+#: Device names Windows reserves, also with an extension (``CON.scan``): no folder can have them.
+_WINDOWS_RESERVED = frozenset(["CON", "PRN", "AUX", "NUL", *(f"{d}{i}" for d in ("COM", "LPT")
+                                                            for i in [*"123456789", "¹", "²", "³"])])
+#: Longest folder name made from an input name, in UTF-8 bytes: file systems allow 255, and the
+#: ``-2`` of a repeated name must still fit.
+FOLDER_NAME_BYTES = 200
+
+
+def _safe_folder_name(stem: str) -> str:
+    """``stem`` made into a name that is a plain folder on every system.
+
+    Separators, control and unprintable characters (and ``: * ? " < > |``) become ``_``; leading
+    dots, dashes and spaces (hidden folders, option look-alikes, ``..``) and trailing dots and spaces
+    (which Windows drops) are removed; names Windows reserves (``CON``, ``NUL``, ``COM1``...) get a
+    leading ``_``; what is left empty becomes ``input``.
+    """
+    name = "".join("_" if c in _UNSAFE_CHARS or not c.isprintable() else c for c in stem)
+    name = name.encode("utf-8")[:FOLDER_NAME_BYTES].decode("utf-8", "ignore")
+    name = name.lstrip(" .-").rstrip(" .") or "input"
+    if name.split(".")[0].rstrip(" ").upper() in _WINDOWS_RESERVED:
+        name = f"_{name}"
+    return name
+
+
 def _folder_names(inputs: list[Path]) -> list[str]:
-    """One output folder name per input: its stem, made unique (``scan``, ``scan-2``, ...)."""
+    """One output folder name per input: its stem, made safe (:func:`_safe_folder_name`) and unique
+    (``scan``, ``scan-2``, ...)."""
     used, names = set(), []
     for path in inputs:
-        stem = path.stem or path.name or "input"
+        stem = _safe_folder_name(path.stem or path.name)
         name, i = stem, 1
         while name.casefold() in used:  # case-insensitive file systems
             i += 1
@@ -624,6 +692,20 @@ def _with_path(path: Path, exc: Exception) -> str:
 
 def _exit_code(exc: BaseException) -> int:
     return EXIT_FAILED if isinstance(exc, ReconstructionError) else EXIT_INPUT
+
+
+def _internal_error(exc: Exception) -> str:
+    """The one line about an unexpected exception (a bug); its traceback goes to the log (-v)."""
+    log.info("internal error:", exc_info=exc)
+    what = f"{type(exc).__name__}: {_one_line(exc)}" if str(exc).strip() else type(exc).__name__
+    return f"internal error ({what}) — please report it"
+
+
+def _failure(path: Path, exc: Exception) -> tuple[str, int]:
+    """Message and exit code of an input that failed: an expected error, or a bug (code 1)."""
+    if isinstance(exc, CanalsurfError):
+        return _with_path(path, exc), _exit_code(exc)
+    return f"{path}: {_internal_error(exc)}", EXIT_FAILED
 
 
 def _cmd_reconstruct(args, console: _Console) -> int:
@@ -660,21 +742,20 @@ def _cmd_reconstruct(args, console: _Console) -> int:
                      "from the file" if normals is not None else "estimated")
             model = _reconstruct_cloud(points, normals, str(path), options, console)
             files = _output_files(model, mesh_format=args.mesh_format, caps=args.caps,
-                                  report_points=points if args.report else None, source=str(path))
+                                  report_points=points if args.report else None, source=str(path),
+                                  label_points=points if args.labels else None)
             try:
-                written = _write_files(folder, files)
+                written = _write_files(folder, files, inside=args.output)
             except OSError as exc:
                 raise _output_error(exc, folder) from None
-        except CanalsurfError as exc:
-            message, code = _with_path(path, exc), _exit_code(exc)
+        except Exception as exc:  # noqa: BLE001 -- even a bug fails this input only
+            message, code = _failure(path, exc)
             console.error(message)
             console.record({"input": str(path), "outdir": str(folder), "error": message, "exit_code": code})
             worst = max(worst, code)
             continue
         console.record(_summary(str(path), folder, model, written))
-        console.say(f"{path}: {model.kind}, radius {model.mean_radius:.6g}, "
-                    f"{'closed' if model.closed else 'open'} spine of length {_spine_length(model):.6g}"
-                    f" -> {folder}{os.sep} ({', '.join(f.name for f in written)})")
+        console.say(f"{path}: {_describe(model)} -> {folder}{os.sep} ({', '.join(f.name for f in written)})")
     return worst
 
 
@@ -727,15 +808,17 @@ def _cmd_demo(args, console: _Console) -> int:
 
 
 def _cmd_synth(args, console: _Console) -> int:
-    from .synth import SURFACES, make_tube
+    from .synth import NETWORKS, SURFACES, make_network, make_tube
 
     if args.list:
+        entries = {name: spec[-1] for name, spec in SURFACES.items()}
+        entries.update({name: f"network: {spec[-1]}" for name, spec in NETWORKS.items()})
         if console.json:
-            console.record({name: spec[-1] for name, spec in SURFACES.items()})
+            console.record(entries)
         else:
-            width = max(map(len, SURFACES))
-            for name, spec in SURFACES.items():
-                print(f"{name:<{width}}  {spec[-1]}", file=console.out)
+            width = max(map(len, entries))
+            for name, text in entries.items():
+                print(f"{name:<{width}}  {text}", file=console.out)
         return EXIT_OK
     if args.name is None or args.output is None:
         raise _UsageError("synth needs NAME and -o FILE (or --list)", f"{PROG} synth")
@@ -743,18 +826,51 @@ def _cmd_synth(args, console: _Console) -> int:
     if path.suffix.lower() not in POINT_WRITE_FORMATS:
         raise InputError(f"{path}: cannot write points as {path.suffix or '(no suffix)'!r} — "
                          f"use one of {', '.join(POINT_WRITE_FORMATS)}")
-    tube = make_tube(args.name, n=args.n, noise=args.noise, rng=args.seed, sampling=args.sampling,
-                     noise_model="gaussian" if args.gaussian else "uniform", arc=args.arc,
-                     outliers=args.outliers, density_ratio=args.density_ratio)
+    network = args.name in NETWORKS
+    # options that do not apply to NAME are refused rather than silently ignored
+    if network:
+        given = {"--sampling": args.sampling != "area", "--gaussian": args.gaussian, "--arc": args.arc != 360,
+                 "--outliers": args.outliers != 0, "--density-ratio": args.density_ratio != 1}
+    else:
+        given = {"--clutter": args.clutter is not None, "--size": args.size is not None}
+    wrong = [option for option, set_ in given.items() if set_]
+    if wrong:
+        kind = "surfaces, not of the network" if network else "networks, not of the surface"
+        raise _UsageError(f"{wrong[0]} is an option of the {kind} {args.name!r}", f"{PROG} synth")
+    if network:
+        options = {key: value for key, value in (("n", args.n), ("noise", args.noise), ("clutter", args.clutter),
+                                                  ("size", args.size)) if value is not None}
+        cloud = make_network(args.name, rng=args.seed, **options)
+        n, share = len(cloud.points), float(cloud.clutter.mean())
+        b, j = len(cloud.branches), len(cloud.junctions)
+        shape = (f"{b} branch{'es' * (b != 1)}, {j} junction{'s' * (j != 1)}; uniform noise "
+                 f"±{100 * cloud.noise:g} % of the radius{f', {100 * share:g} % on clutter' if share else ''}")
+        record = {"network": True, "branches": len(cloud.branches), "junctions": len(cloud.junctions),
+                  "components": len(cloud.components), "noise_model": "uniform, relative to the radius",
+                  "clutter": share}
+    else:
+        n = DEMO_POINTS if args.n is None else args.n
+        cloud = make_tube(args.name, n=n, noise=args.noise, rng=args.seed, sampling=args.sampling,
+                          noise_model="gaussian" if args.gaussian else "uniform", arc=args.arc,
+                          outliers=args.outliers, density_ratio=args.density_ratio)
+        shape = (f"Gaussian noise of standard deviation {cloud.noise:g}" if args.gaussian
+                 else f"uniform noise ±{cloud.noise:g}")
+        shape += "".join(text for text, on in (
+            (f", one-sided scan of {args.arc:g}°", args.arc != 360),
+            (f", {100 * args.outliers:g} % stray points", args.outliers != 0),
+            (f", density falling {args.density_ratio:g}x along the spine", args.density_ratio != 1),
+            (", uniform in the surface parameters", args.sampling != "area")) if on)
+        record = {"network": False, "closed": cloud.closed, "noise_model": cloud.noise_model, "arc": cloud.arc,
+                  "outliers": args.outliers, "density_ratio": args.density_ratio, "sampling": args.sampling}
     created = _make_dirs(path.parent)
     try:
-        write_points(path, tube.points, tube.normals if args.normals else None)
+        write_points(path, cloud.points, cloud.normals if args.normals else None)
     except BaseException:
         _remove_dirs(created)
         raise
-    console.record({"name": args.name, "output": str(path), "n": int(args.n), "noise": tube.noise,
-                    "seed": args.seed, "normals": bool(args.normals), "closed": tube.closed})
-    console.say(f"{path}: {args.n} points of {args.name} (noise ±{tube.noise:g}, seed {args.seed}"
+    console.record({"name": args.name, "output": str(path), "n": int(n), "noise": cloud.noise,
+                    "seed": args.seed, "normals": bool(args.normals), **record})
+    console.say(f"{path}: {n} points of {args.name} ({shape}, seed {args.seed}"
                 f"{', with true normals' if args.normals else ''})")
     return EXIT_OK
 
@@ -837,8 +953,11 @@ def main(argv: list[str] | None = None) -> int:
         except OSError as exc:
             console.error(str(_output_error(exc, Path(getattr(args, "output", ".") or "."))))
             return EXIT_INPUT
+        except Exception as exc:  # noqa: BLE001 -- a bug: one line, not a traceback
+            console.error(_internal_error(exc))
+            return EXIT_FAILED
         except KeyboardInterrupt:
-            console.error("interrupted — nothing more was written")
+            console.error(INTERRUPTED)
             return EXIT_INTERRUPTED
 
 

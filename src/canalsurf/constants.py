@@ -12,6 +12,9 @@ import math
 NORMAL_NEIGHBOURS = 16
 #: Neighbours used for the orientation spanning tree (a sparser graph suffices and is faster).
 ORIENT_NEIGHBOURS = 8
+#: ... and a link is only used if it is at most this many times as long as the farthest of those
+#: neighbours at either end (longer links bridge two surfaces, e.g. a sparse floor and a pipe above).
+ORIENT_LINK_REACH = 2.0
 
 # --- shrinking (paper, Section 2.1 and 3) ---------------------------------------------------------
 #: Break portion mu: the paper used mu >= 0.7 "for most examples".
@@ -98,9 +101,6 @@ MAX_RESIDUAL_POINTS = 200_000
 #: A scan whose median angular coverage around the spine is below this many degrees is one-sided
 #: (a full scan of 100 points per stretch reads about 340; see metrics.angular_coverage).
 ONE_SIDED_DEGREES = 300.0
-#: More stray points than this share (residual beyond OUTLIER_SIGMAS) means the input is not one tube
-#: (real scans have a few percent of stray points).
-MAX_STRAY_SHARE = 0.2
 #: A one-sided scan's shifted points must crowd at least this many times as close at the spine as on
 #: the surface (on a tube about 4 r / R = 20 times; on a blob of noise about once).
 MIN_CONCENTRATION = 3.0

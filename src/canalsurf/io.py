@@ -16,6 +16,14 @@ Mesh formats (``MESH_FORMATS``)
 Other writers
     :func:`write_spine_csv`, :func:`write_spine_dxf` (ezdxf, extra ``dxf``), :func:`write_json`.
 
+Hostile files.  Each reader checks what can be checked from a file's start before reading it whole:
+the leading bytes, the header against the file's size (PLY, .npy and each .npz member, PCD, LAS/LAZ
+and the LASzip chunk table, with struct, before laspy or lazrs see the file) and a sample of the first
+lines of text; E57 scans are read in bounded pieces and must hold the points they declare.  So a
+corrupted file is refused in bounded time and memory, and a header that counts fewer rows than the
+data holds is refused like one that counts more (the rest would be dropped silently).
+``benchmarks/fuzz.py`` checks this on damaged files of every format (docs/reliability.md).
+
 Every writer goes through :func:`atomic_write`: the data is written to a temporary file in the
 target folder and moved over the target only once complete, so an interrupted run never leaves a
 half-written file behind under the real name.
@@ -26,12 +34,16 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
+import logging
+import math
 import os
 import pathlib
 import secrets
 import stat
+import struct
+import zipfile
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -45,12 +57,15 @@ __all__ = [
     "read_points",
     "write_points",
     "write_json",
+    "write_labelled_points",
     "write_mesh",
     "write_spine_csv",
     "write_spine_dxf",
 ]
 
 PathLike = str | os.PathLike
+
+log = logging.getLogger(__name__)
 
 #: Field names under which normals are stored, per format family.  PLY uses the meshlab/CloudCompare
 #: names, PCD the PCL names; LAS has no standard normal dimension, so both spellings are accepted as
@@ -70,6 +85,17 @@ POINT_WRITE_FORMATS = {".ply": "ply", ".xyz": "text", ".txt": "text", ".asc": "t
 #: such a line must not be taken for the delimiter (the row then fails with a line-numbered error
 #: instead of silently splitting numbers).  ``None`` means runs of whitespace.
 _TEXT_DELIMITERS = (";", "\t", ",")
+
+# Bounds that let a reader refuse a bad file after reading its start, never after reading it whole.
+#: Bytes sampled at the start of a text point file before it is parsed: hundreds of lines, and a
+#: file that is not text (NUL bytes, invalid UTF-8) is refused after reading this much.
+_TEXT_SAMPLE_BYTES = 1 << 16
+#: Longest line of a text point file: six numbers at full precision take about 150 characters; a
+#: longer "line" is binary data, which must not be read into memory whole in search of a newline.
+_MAX_LINE_CHARS = 4096
+#: Most bytes a PLY or PCD header may take: real ones take hundreds of bytes (a few KB with
+#: comments); a file whose header does not end within this is not one.
+_MAX_HEADER_BYTES = 1 << 20
 
 
 # --------------------------------------------------------------------------------------------------
@@ -107,10 +133,57 @@ def _translating(path: pathlib.Path, what: str, fix: str) -> Iterator[None]:
     """
     try:
         yield
-    except InputError:
+    except (InputError, KeyboardInterrupt, SystemExit, GeneratorExit):
         raise
-    except Exception as exc:  # noqa: BLE001 -- see docstring
+    except BaseException as exc:  # noqa: BLE001 -- see docstring
+        # BaseException, not Exception: pyo3 turns a panic of Rust code (lazrs) into PanicException,
+        # which derives from BaseException.
         raise InputError(f"{path}: not a readable {what} file ({_one_line(exc)}) — {fix}") from exc
+
+
+def _as_path(path: Any, what: str = "path") -> pathlib.Path:
+    """``path`` as a :class:`pathlib.Path`, or :class:`InputError` if it is not a file path at all."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"{what} must be a file path (str or os.PathLike), got {type(path).__name__}")
+    try:
+        result = pathlib.Path(path)
+    except TypeError:  # an os.PathLike whose __fspath__ gives bytes
+        raise InputError(f"{what} must be a text file path, got {type(path).__name__}") from None
+    if "\0" in str(result):
+        raise InputError(f"{what} {str(result)!r} contains a NUL character — give a file name")
+    return result
+
+
+def _truncated(path: pathlib.Path, what: str, declared: int, held: int, rows: str = "points") -> InputError:
+    """The error of a file whose header promises more rows than its data holds."""
+    return InputError(f"{path}: {what} file is truncated (header says {declared} {rows}, data holds {held}) "
+                      "— re-export the file")
+
+
+def _more_data(path: pathlib.Path, what: str, declared: int, rows: str = "points") -> InputError:
+    """The error of a file whose header promises fewer rows than its data holds (the rest would be dropped)."""
+    return InputError(f"{path}: {what} header says {declared} {rows} but more data follows — the file is "
+                      "corrupted; re-export the file")
+
+
+@contextlib.contextmanager
+def _library_logs(name: str) -> Iterator[None]:
+    """Pass a library's log records on to canalsurf's logger at INFO level while it reads a file.
+
+    Without a handler of its own, a record such as laspy's warning about an odd extra-bytes record
+    goes to Python's last-resort handler, which prints it to stderr around the command line's output.
+    """
+
+    class Relay(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            log.info("%s: %s", record.name, record.getMessage())
+
+    logger, relay = logging.getLogger(name), Relay()
+    logger.addHandler(relay)
+    try:
+        yield
+    finally:
+        logger.removeHandler(relay)
 
 
 def _as_xyz(columns: list[np.ndarray]) -> np.ndarray:
@@ -189,6 +262,12 @@ def _read_ply(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     if magic != b"ply" or len(fmt) < 2 or fmt[0] != b"format":
         raise InputError(f"{path}: not a PLY file (it does not start with 'ply' and a format line) — {fix}")
     text = fmt[1] == b"ascii"
+    # plyfile reads the header line by line: bound it, or a file with no newline is read whole
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_HEADER_BYTES)
+    if b"end_header" not in head:
+        where = f" in its first {_MAX_HEADER_BYTES >> 20} MiB" if len(head) == _MAX_HEADER_BYTES else ""
+        raise InputError(f"{path}: not a readable PLY file (its header has no end_header line{where}) — {fix}")
 
     # ASCII PLY is opened as text so that the stream position after parsing is meaningful (plyfile
     # wraps a binary stream in a TextIOWrapper it then discards); binary is memory-mapped by plyfile,
@@ -200,14 +279,14 @@ def _read_ply(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
         except plyfile.PlyElementParseError as exc:
             element = exc.element
             if exc.message in ("early end-of-file", "early end-of-line") and element is not None:
-                raise InputError(
-                    f"{path}: PLY file is truncated (header says {element.count} {_rows(element.name)}, "
-                    f"data holds {exc.row}) — {fix}"
-                ) from None
+                raise _truncated(path, "PLY", element.count, exc.row, _rows(element.name)) from None
             raise InputError(f"{path}: not a readable PLY file ({_one_line(exc)}) — {fix}") from None
         except Exception as exc:  # noqa: BLE001 -- plyfile raises many types on garbage; see _translating
             raise InputError(f"{path}: not a readable PLY file ({_one_line(exc)}) — {fix}") from None
-        trailing = fh.read(1 << 16)
+        try:
+            trailing = fh.read(1 << 16)
+        except UnicodeDecodeError:  # bytes that are not ASCII after the last ASCII row: more data
+            trailing = "\0"
 
         names = [el.name for el in data.elements]
         if "vertex" not in names:
@@ -219,29 +298,67 @@ def _read_ply(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
         row_bytes = vertex.data.dtype.itemsize
         extra = trailing.strip() if text else trailing
         if (text and extra) or (not text and len(extra) >= row_bytes):
-            raise InputError(
-                f"{path}: PLY header says {vertex.count} {_rows('vertex')} but more data follows — {fix}"
-            )
+            raise _more_data(path, "PLY", vertex.count, _rows("vertex"))
         props = vertex.data.dtype.names or ()
         missing = [p for p in "xyz" if p not in props]
         if missing:
             raise InputError(
                 f"{path}: PLY vertices lack {', '.join(missing)} (they have {list(props)}) — {fix}"
             )
+        used = list("xyz") + (list(_PLY_NORMALS) if set(_PLY_NORMALS) <= set(props) else [])
+        lists = [p for p in used if vertex.data.dtype[p].kind not in "iuf"]
+        if lists:
+            raise InputError(f"{path}: PLY vertex properties {', '.join(lists)} are lists, not numbers — {fix}")
         points = _as_xyz([vertex[p] for p in "xyz"])
-        normals = _as_xyz([vertex[p] for p in _PLY_NORMALS]) if set(_PLY_NORMALS) <= set(props) else None
+        normals = _as_xyz([vertex[p] for p in _PLY_NORMALS]) if len(used) == 6 else None
     return points, normals
+
+
+def _check_text_start(path: pathlib.Path, what: str = "text", fix: str = "export the points as text",
+                      offset: int = 0) -> None:
+    """Refuse a file whose first ``_TEXT_SAMPLE_BYTES`` (from ``offset``) are not lines of UTF-8 text."""
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        sample = fh.read(_TEXT_SAMPLE_BYTES)
+    try:
+        sample.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        # a multi-byte character cut in two by the end of the sample is no error
+        if not (len(sample) == _TEXT_SAMPLE_BYTES and exc.start >= len(sample) - 3
+                and exc.reason == "unexpected end of data"):
+            raise InputError(f"{path}: not a {what} file (it holds non-UTF-8 bytes) — {fix}") from None
+    if b"\0" in sample:  # valid UTF-8, but no text file holds it
+        raise InputError(f"{path}: not a {what} file (it holds NUL bytes) — {fix}")
+    if len(sample) == _TEXT_SAMPLE_BYTES and max(map(len, sample.split(b"\n"))) > _MAX_LINE_CHARS:
+        raise _long_line(path, fix=f"{fix}, one point a line")
+
+
+def _long_line(path: pathlib.Path, number: int | None = None,
+               fix: str = "export the points as text, one point a line") -> InputError:
+    which = "a line" if number is None else f"line {number}"
+    return InputError(f"{path}: {which} is longer than {_MAX_LINE_CHARS} characters (not a point text file) "
+                      f"— {fix}")
+
+
+def _lines(path: pathlib.Path) -> Iterator[tuple[int, str]]:
+    """The lines of a text file with their 1-based numbers, each read with a bounded length."""
+    with open(path, encoding="utf-8-sig") as fh:
+        number = 0
+        while line := fh.readline(_MAX_LINE_CHARS + 1):
+            number += 1
+            if len(line) > _MAX_LINE_CHARS:
+                raise _long_line(path, number)
+            yield number, line
 
 
 def _first_lines(path: pathlib.Path, count: int) -> list[tuple[int, str]]:
     """Up to ``count`` non-blank, non-comment lines with their 1-based line numbers."""
     found = []
-    with open(path, encoding="utf-8-sig") as fh:
-        for number, line in enumerate(fh, start=1):
-            if line.strip() and not line.lstrip().startswith("#"):
-                found.append((number, line))
-                if len(found) == count:
-                    break
+    for number, line in _lines(path):
+        if line.strip() and not line.lstrip().startswith("#"):
+            found.append((number, line))
+            if len(found) == count:
+                break
     return found
 
 
@@ -270,6 +387,7 @@ def _not_text(path: pathlib.Path) -> InputError:
 
 def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     fix = "give 3 (x y z) or 6 (x y z nx ny nz) numeric columns"
+    _check_text_start(path)
     try:
         head = _first_lines(path, 2)
     except UnicodeDecodeError:
@@ -308,22 +426,23 @@ def _explain_text_error(
 ) -> InputError:
     """Find the first bad line of a text point file and say what is wrong with it."""
     try:
-        with open(path, encoding="utf-8-sig") as fh:
-            for number, line in enumerate(fh, start=1):
-                content = line.split("#", 1)[0]
-                if number <= header_lines or not content.strip():
-                    continue
-                fields = _fields(content, delimiter)
-                if len(fields) != ncols:
-                    return InputError(
-                        f"{path}: line {number} has {len(fields)} columns, earlier lines have {ncols} — {fix}"
-                    )
-                if not _is_numeric_row(fields):
-                    shown = line.strip()
-                    shown = shown if len(shown) <= 60 else shown[:57] + "..."
-                    return InputError(f"{path}: line {number} is not numeric ({shown!r}) — {fix}")
+        for number, line in _lines(path):
+            content = line.split("#", 1)[0]
+            if number <= header_lines or not content.strip():
+                continue
+            fields = _fields(content, delimiter)
+            if len(fields) != ncols:
+                return InputError(
+                    f"{path}: line {number} has {len(fields)} columns, earlier lines have {ncols} — {fix}"
+                )
+            if not _is_numeric_row(fields):
+                shown = line.strip()
+                shown = shown if len(shown) <= 60 else shown[:57] + "..."
+                return InputError(f"{path}: line {number} is not numeric ({shown!r}) — {fix}")
     except UnicodeDecodeError:
         return _not_text(path)
+    except InputError as too_long:
+        return too_long
     return InputError(f"{path}: not a readable point text file ({_one_line(exc)}) — {fix}")
 
 
@@ -331,63 +450,196 @@ def _explain_text_error(
 #: anything else, np.load assumes a pickle and its error suggests loading the file unsafely.
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
+#: Largest ratio of deflate (a 258-byte match coded in about 2 bits): a zip member claiming to unpack
+#: to more than this many times its stored size is corrupted, and is refused before numpy allocates it.
+_DEFLATE_MAX_RATIO = 1032
 
 
-def _check_magic(path: pathlib.Path, magics: tuple[bytes, ...], what: str, fix: str) -> None:
+def _numpy_kind(path: pathlib.Path) -> str | None:
+    """``"npy"``, ``"npz"`` or ``None``, from the file's leading bytes (whatever its suffix says)."""
     with open(path, "rb") as fh:
-        head = fh.read(max(len(m) for m in magics))
-    if not any(head.startswith(m) for m in magics):
-        raise InputError(f"{path}: not a {what} file (it lacks the format's leading bytes) — {fix}")
+        head = fh.read(max(len(_NPY_MAGIC), len(_ZIP_MAGIC)))
+    return "npy" if head.startswith(_NPY_MAGIC) else "npz" if head.startswith(_ZIP_MAGIC) else None
+
+
+def _read_numpy(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """A .npy or .npz file; which of the two is decided by its leading bytes, not by its suffix."""
+    suffix = path.suffix.lower()
+    kind = _numpy_kind(path)
+    if kind is None:
+        fix = ("save an (N, 3) or (N, 6) array with numpy.save" if suffix == ".npy"
+               else "save with numpy.savez(file, points=..., normals=...)")
+        raise InputError(f"{path}: not a NumPy {suffix} file (it lacks the format's leading bytes) — {fix}")
+    if f".{kind}" != suffix:
+        log.info("%s: holds a NumPy .%s %s; read as such", path, kind, "array" if kind == "npy" else "archive")
+    return _read_npy(path) if kind == "npy" else _read_npz(path)
+
+
+def _npy_header(fh, path: pathlib.Path, what: str, fix: str) -> tuple[tuple[int, ...], np.dtype, int]:
+    """Shape, dtype and header length of the .npy data that ``fh`` starts at."""
+    with _translating(path, what, fix):
+        version = np.lib.format.read_magic(fh)
+        # version 3.0 differs from 2.0 only in allowing UTF-8 field names
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(fh)
+        return tuple(shape), dtype, fh.tell()
+
+
+def _check_npy_size(shape: tuple[int, ...], dtype: np.dtype, data_bytes: int, path: pathlib.Path, what: str,
+                    fix: str) -> None:
+    """Refuse .npy data that holds Python objects, or more or fewer bytes than its header declares."""
+    if dtype.hasobject:
+        raise InputError(f"{path}: not a readable {what} file (it holds Python objects, which are never "
+                         f"loaded) — {fix}")
+    if any(d < 0 for d in shape):
+        raise InputError(f"{path}: not a readable {what} file (its header gives the shape {shape}) — {fix}")
+    rows = shape[0] if shape else 1
+    row_bytes = dtype.itemsize * math.prod(shape[1:])
+    declared = rows * row_bytes
+    if data_bytes < declared:
+        raise _truncated(path, what, rows, data_bytes // row_bytes if row_bytes else 0)
+    if data_bytes - declared >= max(row_bytes, 1):
+        raise _more_data(path, what, rows)
 
 
 def _read_npy(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     fix = "save an (N, 3) or (N, 6) array with numpy.save"
-    _check_magic(path, (_NPY_MAGIC,), "NumPy .npy", fix)
+    with open(path, "rb") as fh:
+        shape, dtype, header = _npy_header(fh, path, "NumPy .npy", fix)
+    _check_npy_size(shape, dtype, path.stat().st_size - header, path, "NumPy .npy", fix)
     with _translating(path, "NumPy .npy", fix):
         # allow_pickle=False: a point file must never be able to run code on load
         arr = np.load(path, allow_pickle=False)
         return _split_columns(np.asarray(arr), path, "the file")
 
 
+def _npz_array(npz, key: str, path: pathlib.Path, fix: str) -> np.ndarray:
+    """Array ``key`` of an open .npz, after checking its header against the member's size."""
+    what = f"NumPy .npz ('{key}')"
+    zf = npz.zip
+    name = f"{key}.npy" if f"{key}.npy" in zf.namelist() else key
+    info = zf.getinfo(name)
+    # numpy stores or deflates; the other methods zip knows have no useful bound
+    ratio = {zipfile.ZIP_STORED: 1, zipfile.ZIP_DEFLATED: _DEFLATE_MAX_RATIO}.get(info.compress_type)
+    if ratio is not None and info.file_size > ratio * info.compress_size:
+        raise InputError(f"{path}: {what} claims to unpack {info.compress_size} bytes to {info.file_size} — "
+                         "the file is corrupted; re-export the file")
+    with zf.open(info) as fh:
+        if not fh.read(len(_NPY_MAGIC)).startswith(_NPY_MAGIC):
+            raise InputError(f"{path}: {what} is not a NumPy array — {fix}")
+        fh.seek(0)
+        shape, dtype, header = _npy_header(fh, path, what, fix)
+    _check_npy_size(shape, dtype, info.file_size - header, path, what, fix)
+    return npz[key]
+
+
 def _read_npz(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     fix = "save with numpy.savez(file, points=..., normals=...)"
-    _check_magic(path, (_ZIP_MAGIC, _NPY_MAGIC), "NumPy .npz", fix)
-    with _translating(path, "NumPy .npz", fix):
-        with np.load(path, allow_pickle=False) as npz:
-            if not hasattr(npz, "files"):  # np.load gives a bare array for a .npy named .npz
-                return _split_columns(np.asarray(npz), path, "the file")
+    # np.load is given an open file: on a broken archive it would leave its own one open
+    with _translating(path, "NumPy .npz", fix), open(path, "rb") as fh:
+        with np.load(fh, allow_pickle=False) as npz:
             keys = list(npz.files)
             if "points" in keys:
-                points, extra = _split_columns(npz["points"], path, "'points'")
+                points, extra = _split_columns(_npz_array(npz, "points", path, fix), path, "'points'")
                 if extra is not None:
                     raise InputError(f"{path}: 'points' must have 3 columns when stored by name — {fix}")
                 if "normals" not in keys:
                     return points, None
-                normals, _ = _split_columns(npz["normals"], path, "'normals'")
+                normals, _ = _split_columns(_npz_array(npz, "normals", path, fix), path, "'normals'")
                 if normals.shape != points.shape:
                     raise InputError(
                         f"{path}: 'normals' has shape {normals.shape} but 'points' has {points.shape} — {fix}"
                     )
                 return points, normals
             if len(keys) == 1:
-                return _split_columns(npz[keys[0]], path, f"'{keys[0]}'")
+                return _split_columns(_npz_array(npz, keys[0], path, fix), path, f"'{keys[0]}'")
             raise InputError(f"{path}: .npz holds arrays {keys} but no 'points' — {fix}")
+
+
+#: pypcd4 stops reading a PCD header after this many lines without DATA (PCL writes 10 or 11).
+_PCD_HEADER_LINES = 10
+#: Most values (the sum of COUNT) a PCD point may have: feature descriptors reach a few hundred
+#: (SHOT 352); a corrupted COUNT of a billion would otherwise build a billion-field dtype.
+_MAX_PCD_VALUES = 10_000
+#: Largest ratio of LZF (PCD binary_compressed): a 3-byte back-reference copies at most 264 bytes.
+_LZF_MAX_RATIO = 100
+
+
+def _pcd_header(path: pathlib.Path, fix: str) -> tuple[list[str], int]:
+    """The header lines of a PCD file as pypcd4 reads them, and the byte where its data starts."""
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_HEADER_BYTES)
+    lines: list[str] = []
+    pos = 0
+    while len(lines) < _PCD_HEADER_LINES and not (lines and lines[-1].startswith("DATA")):
+        end = head.find(b"\n", pos)
+        if end < 0:
+            break
+        try:
+            line = head[pos:end].decode("utf-8").strip()
+        except UnicodeDecodeError:
+            raise InputError(f"{path}: not a PCD file (its header is not text) — {fix}") from None
+        pos = end + 1
+        if line and not line.startswith("#"):
+            lines.append(line)
+    if not (lines and lines[-1].startswith("DATA")):
+        raise InputError(f"{path}: not a readable PCD file (no DATA line ends its header) — {fix}")
+    return lines, pos
+
+
+def _check_pcd_data(path: pathlib.Path, metadata, start: int, fix: str) -> None:
+    """Refuse a PCD file whose data cannot hold, or holds more than, the points its header declares."""
+    count, row = metadata.points, metadata.build_dtype().itemsize
+    data = path.stat().st_size - start
+    encoding = metadata.data.value
+    if encoding == "ascii":
+        _check_text_start(path, "PCD ASCII", fix, offset=start)
+    elif encoding == "binary":
+        if data < count * row:
+            raise _truncated(path, "PCD", count, data // row)
+        if data - count * row >= row:
+            raise _more_data(path, "PCD", count)
+    else:  # binary_compressed: two uint32 sizes, then the LZF data of every field in turn
+        with open(path, "rb") as fh:
+            fh.seek(start)
+            sizes = fh.read(8)
+        if len(sizes) < 8:
+            raise _truncated(path, "PCD", count, 0)
+        packed, unpacked = struct.unpack("<II", sizes)
+        if packed > data - 8:
+            raise InputError(f"{path}: PCD file is truncated (its compressed data takes {packed} bytes, the file "
+                             f"holds {data - 8}) — re-export the file")
+        if unpacked != count * row or unpacked > _LZF_MAX_RATIO * packed:
+            raise InputError(f"{path}: PCD header says {count} points of {row} bytes but its compressed data "
+                             f"unpacks to {unpacked} bytes — the file is corrupted; re-export the file")
+        if data - 8 - packed >= row:
+            raise _more_data(path, "PCD", count)
 
 
 def _read_pcd(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     pypcd4 = _import_extra("pypcd4", ".pcd", "pcd")
     fix = "re-export the file"
+    lines, start = _pcd_header(path, fix)
     with _translating(path, "PCD", fix):
+        metadata = pypcd4.MetaData.parse_header(lines)
+    if sum(metadata.count) > _MAX_PCD_VALUES:
+        raise InputError(f"{path}: PCD header declares {sum(metadata.count)} values per point (COUNT) — the "
+                         "file is corrupted; re-export the file")
+    if metadata.width * metadata.height != metadata.points:
+        raise InputError(f"{path}: PCD header says WIDTH x HEIGHT = {metadata.width} x {metadata.height} but "
+                         f"POINTS {metadata.points} — the file is corrupted; re-export the file")
+    with _translating(path, "PCD", fix):
+        _check_pcd_data(path, metadata, start, fix)
         cloud = pypcd4.PointCloud.from_path(path)
         fields = cloud.fields
-    # pypcd4 reads what is there without comparing with the header's POINTS, so a truncated
-    # file would silently give fewer points.
+    # pypcd4 reads what is there without comparing with the header's POINTS (ASCII data above all),
+    # so a truncated file would silently give fewer points, an under-counting header more.
     data = np.atleast_1d(cloud.pc_data)  # loadtxt gives a 0-d record for a one-point ASCII file
     held, declared = len(data), cloud.points
-    if held != declared:
-        raise InputError(
-            f"{path}: PCD file is truncated (header says {declared} points, data holds {held}) — {fix}"
-        )
+    if held < declared:
+        raise _truncated(path, "PCD", declared, held)
+    if held > declared:
+        raise _more_data(path, "PCD", declared)
     missing = [f for f in "xyz" if f not in fields]
     if missing:
         raise InputError(
@@ -404,45 +656,335 @@ def _read_pcd(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     return points, normals
 
 
+# LAS / LAZ.  The header is checked against the file size here, with struct, before laspy reads
+# anything: laspy trusts its counts (it reads a billion variable-length records if the header says
+# so), and lazrs allocates the chunk table the file announces, aborting the process when that fails.
+
+#: Least header size of each LAS 1.x minor version (the fields up to the 1.4 point counts).
+_LAS_HEADER_BYTES = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
+#: Bytes of a point record of each point format 0 - 10 (extra bytes may follow).
+_LAS_POINT_BYTES = (20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67)
+#: Header bytes of a variable-length record and of an extended one (LAS 1.4).
+_LAS_VLR_BYTES, _LAS_EVLR_BYTES = 54, 60
+#: Most (extended) variable-length records a LAS file may list: real files carry a handful
+#: (projection, extra bytes, LASzip, COPC index); each is walked before laspy reads them.
+_MAX_LAS_VLRS = 65_535
+#: Most points a LAZ file may hold per byte of compressed data: identical points in LASzip's
+#: 50,000-point chunks take about 150 points a byte (measured), real scans 1 - 3 bytes a point.
+_MAX_LAZ_POINTS_PER_BYTE = 500
+#: Points decoded at a time, so memory follows the points a file really holds, not what it claims.
+_LAS_CHUNK_POINTS = 1 << 20
+#: The variable-length record that describes LASzip compression.
+_LASZIP_USER_ID, _LASZIP_RECORD_ID = b"laszip encoded", 22204
+#: Layers of each "layered" LASzip item (LAS 1.4 point formats 6 - 10), by item type: Point14 (x, y
+#: and returns, z, classification, flags, intensity, scan angle, user data, point source, GPS time),
+#: RGB14, RGBNIR14 (RGB, NIR), Wavepacket14; Byte14 has one layer per extra byte (``None``).
+_LASZIP_LAYERS = {10: 9, 11: 1, 12: 2, 13: 1, 14: None}
+
+
+class _LasLayout(NamedTuple):
+    """What :func:`_las_layout` found in a LAS/LAZ header, checked against the file."""
+
+    compressed: bool
+    count: int         # points the header declares
+    offset: int        # byte where the point data starts
+    end: int           # byte where it must end: extended records, waveforms or the file's end follow
+    laszip: bytes      # payload of the LASzip record (compressed files), else b""
+
+
+def _las_layout(path: pathlib.Path, what: str) -> _LasLayout:
+    """Read and check the LAS header, its variable-length records and sizes, without laspy."""
+    size = path.stat().st_size
+
+    def bad(problem: str) -> InputError:
+        return InputError(f"{path}: {problem} — the file is corrupted; re-export the file")
+
+    with open(path, "rb") as fh:
+        head = fh.read(_LAS_HEADER_BYTES[4])
+        if not head.startswith(b"LASF"):
+            raise InputError(f"{path}: not a {what} file (it does not start with 'LASF') — re-export the file")
+        if len(head) < _LAS_HEADER_BYTES[0]:
+            raise InputError(f"{path}: {what} header is truncated ({len(head)} bytes) — re-export the file")
+        major, minor = head[24], head[25]
+        if major != 1 or minor not in _LAS_HEADER_BYTES:
+            raise InputError(f"{path}: {what} version {major}.{minor} is not supported (1.0 to 1.4 are) — "
+                             "re-export the file as LAS 1.4 or older")
+        header_size, offset, n_vlrs, point_format, record_bytes, count = struct.unpack_from("<HIIBHI", head, 94)
+        if not _LAS_HEADER_BYTES[minor] <= header_size <= min(size, offset):
+            raise bad(f"{what} header size {header_size} does not fit version 1.{minor} and the point data "
+                      f"offset {offset}")
+        if offset > size:
+            raise bad(f"{what} point data would start at byte {offset}, past the end of the {size}-byte file")
+        if n_vlrs > _MAX_LAS_VLRS or header_size + n_vlrs * _LAS_VLR_BYTES > offset:
+            raise bad(f"{what} header lists {n_vlrs} variable-length records, more than fit before the point "
+                      f"data at byte {offset}")
+        laszip = b""
+        pos = header_size
+        for i in range(n_vlrs):
+            fh.seek(pos)
+            record = fh.read(_LAS_VLR_BYTES)
+            length = struct.unpack_from("<H", record, 20)[0] if len(record) == _LAS_VLR_BYTES else offset
+            if pos + _LAS_VLR_BYTES + length > offset:
+                raise bad(f"{what} variable-length record {i + 1} runs past the start of the point data")
+            user, (record_id,) = record[2:18].rstrip(b"\0"), struct.unpack_from("<H", record, 18)
+            if (user, record_id) == (_LASZIP_USER_ID, _LASZIP_RECORD_ID):
+                laszip = fh.read(length)
+            pos += _LAS_VLR_BYTES + length
+
+        # laspy's rule: bit 7 set and bit 6 clear marks compressed points
+        fmt, compressed = point_format & 0x3F, point_format & 0xC0 == 0x80
+        if fmt >= len(_LAS_POINT_BYTES) or record_bytes < _LAS_POINT_BYTES[fmt]:
+            raise bad(f"{what} point format {fmt} with {record_bytes}-byte records is not valid")
+        if compressed and not laszip:
+            raise bad(f"{what} points are marked compressed but the file has no LASzip record")
+        scales, offsets = struct.unpack_from("<3d", head, 131), struct.unpack_from("<3d", head, 155)
+        # the integers are int32: every coordinate lies within |scale| * 2**31 + |offset|
+        if not all(math.isfinite(abs(k) * 2.0**31 + abs(o)) and k != 0 for k, o in zip(scales, offsets)):
+            shown = ", ".join(f"{v:.3g}" for v in scales + offsets)
+            raise bad(f"{what} scale factors and offsets must be finite and the scales non-zero, the header "
+                      f"has {shown}")
+
+        end = size
+        if minor >= 4:
+            first_evlr, n_evlrs, count64 = struct.unpack_from("<QIQ", head, 235)
+            if count not in (0, count64):  # the legacy 32-bit count is 0 or the same number
+                raise bad(f"{what} header holds two different point counts, {count} and {count64}")
+            count = count64
+            if n_evlrs:
+                if (n_evlrs > _MAX_LAS_VLRS or first_evlr < offset
+                        or first_evlr + n_evlrs * _LAS_EVLR_BYTES > size):
+                    raise bad(f"{what} header lists {n_evlrs} extended records from byte {first_evlr}, which "
+                              f"do not fit between the point data and the end of the file")
+                pos = first_evlr
+                for i in range(n_evlrs):
+                    fh.seek(pos)
+                    record = fh.read(_LAS_EVLR_BYTES)
+                    length = struct.unpack_from("<Q", record, 20)[0] if len(record) == _LAS_EVLR_BYTES else size
+                    pos += _LAS_EVLR_BYTES + length
+                    if pos > size:
+                        raise bad(f"{what} extended record {i + 1} runs past the end of the file")
+                end = first_evlr
+        (global_encoding,) = struct.unpack_from("<H", head, 6)
+        if minor >= 3 and global_encoding & 2:  # waveform packets stored in the file, after the points
+            (waveforms,) = struct.unpack_from("<Q", head, 227)
+            if offset <= waveforms < end:
+                end = waveforms
+
+    data = end - offset
+    if not compressed:
+        if count * record_bytes > data:
+            raise _truncated(path, what, count, data // record_bytes)
+        if data - count * record_bytes >= record_bytes:
+            raise _more_data(path, what, count)
+    elif count > _MAX_LAZ_POINTS_PER_BYTE * data:
+        raise bad(f"{what} header says {count} points, more than {data} bytes of compressed data can hold")
+    return _LasLayout(compressed, count, offset, end, laszip)
+
+
+def _check_laz_chunks(path: pathlib.Path, layout: _LasLayout, lazrs, what: str) -> None:
+    """Check the LASzip chunk table against the file and the header's count before lazrs decodes."""
+
+    def bad(problem: str) -> InputError:
+        return InputError(f"{path}: {problem} — the file is corrupted; re-export the file")
+
+    first = layout.offset + 8  # the chunks follow the 8-byte offset of the chunk table
+    with open(path, "rb") as fh:
+        fh.seek(layout.offset)
+        raw = fh.read(8)
+        if len(raw) < 8:
+            raise _truncated(path, what, layout.count, 0)
+        (table,) = struct.unpack("<q", raw)
+        if table == -1:  # written by a streaming writer: the offset is in the file's last 8 bytes
+            fh.seek(-8, os.SEEK_END)
+            (table,) = struct.unpack("<q", fh.read(8))
+        if not first <= table <= layout.end - 8:
+            raise bad(f"{what} chunk table at byte {table} lies outside the compressed points")
+        fh.seek(table)
+        _, n_chunks = struct.unpack("<II", fh.read(8))
+        # every chunk starts with one point stored raw, of at least the smallest record size
+        if n_chunks * min(_LAS_POINT_BYTES) > table - first:
+            raise bad(f"{what} chunk table lists {n_chunks} chunks, more than {table - first} bytes of "
+                      "compressed points can hold")
+        with _translating(path, what, "re-export the file"):
+            vlr = lazrs.LazVlr(layout.laszip)
+            fh.seek(layout.offset)
+            chunks = lazrs.read_chunk_table(fh, vlr)
+    held_bytes = sum(int(b) for _, b in chunks)
+    if held_bytes != table - first:
+        raise bad(f"{what} chunk table lists {held_bytes} bytes of compressed points, the file holds "
+                  f"{table - first}")
+    _check_laz_layers(path, layout.laszip, first, [int(b) for _, b in chunks], what)
+    if vlr.uses_variable_size_chunks():
+        held = sum(int(n) for n, _ in chunks)
+        if held < layout.count:
+            raise _truncated(path, what, layout.count, held)
+        if held > layout.count:
+            raise _more_data(path, what, layout.count)
+    else:  # chunks of chunk_size points; the last may hold fewer
+        size = int(vlr.chunk_size())
+        if layout.count > len(chunks) * size:
+            raise _truncated(path, what, layout.count, len(chunks) * size)
+        if layout.count <= (len(chunks) - 1) * size:
+            raise _more_data(path, what, layout.count)
+
+
+def _check_laz_layers(path: pathlib.Path, laszip: bytes, first: int, chunk_bytes: list[int], what: str) -> None:
+    """Check that the layers of every chunk of a layered LAZ file fit in the chunk.
+
+    A layered chunk is the first point stored raw, a point count, the byte size of every layer and
+    the layers; lazrs allocates each layer at the size the chunk announces, and aborts the process
+    when that fails, so the sizes are checked here first.  Point formats 0 - 5 are not layered.
+    """
+    n_items = struct.unpack_from("<H", laszip, 32)[0] if len(laszip) >= 34 else len(laszip)
+    if len(laszip) < 34 + 6 * n_items:
+        raise InputError(f"{path}: {what} LASzip record is cut short — the file is corrupted; re-export the file")
+    items = [struct.unpack_from("<HHH", laszip, 34 + 6 * i) for i in range(n_items)]  # type, size, version
+    if not any(kind in _LASZIP_LAYERS for kind, _, _ in items):
+        return
+    raw = sum(size for _, size, _ in items)
+    n_layers = sum(size if _LASZIP_LAYERS.get(kind, 0) is None else _LASZIP_LAYERS.get(kind, 0)
+                   for kind, size, _ in items)
+    start = first
+    with open(path, "rb") as fh:
+        for i, size in enumerate(chunk_bytes):
+            fh.seek(start + raw + 4)
+            sizes = fh.read(4 * n_layers)
+            layers = sum(struct.unpack(f"<{n_layers}I", sizes)) if len(sizes) == 4 * n_layers else size
+            if raw + 4 + len(sizes) + layers > size:
+                raise InputError(f"{path}: {what} chunk {i + 1} announces more compressed data than it holds — "
+                                 "the file is corrupted; re-export the file")
+            start += size
+
+
 def _read_las(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     suffix = path.suffix.lower()
     laspy = _import_extra("laspy", suffix, "las")
+    what = suffix[1:].upper()
+    fix = "re-export the file"
     if suffix == ".laz" and not laspy.LazBackend.detect_available():
         raise _missing_extra(suffix, "las")
-    fix = "re-export the file"
-    with _translating(path, suffix[1:].upper(), fix):
-        las = laspy.read(path)
-        declared = int(las.header.point_count)
-        held = len(las.points)
-        # las.x etc. are the integer records times scale plus offset, computed in float64 -- the
-        # full precision of the file (never cast through float32, which loses millimetres at 1e6).
-        points = _as_xyz([las.x, las.y, las.z])
-        names = {name.lower(): name for name in las.point_format.extra_dimension_names}
-        normals = None
-        for spelling in _LAS_NORMALS:
-            if all(s in names for s in spelling):
-                normals = _as_xyz([las[names[s]] for s in spelling])
-                break
-    if held != declared:
-        raise InputError(
-            f"{path}: LAS file is truncated (header says {declared} points, data holds {held}) — {fix}"
-        )
-    return points, normals
+    layout = _las_layout(path, what)
+    if layout.compressed:
+        if not laspy.LazBackend.detect_available():
+            raise _missing_extra(".laz", "las")
+        _check_laz_chunks(path, layout, _import_extra("lazrs", ".laz", "las"), what)
+    parts, normal_parts = [], []
+    # errstate: extra dimensions with odd scales may overflow; the result is then refused as non-finite
+    with _translating(path, what, fix), _library_logs("laspy"), np.errstate(all="ignore"):
+        # the single-threaded decoder: it decodes chunk by chunk as the points are asked for
+        backend = laspy.LazBackend.Lazrs if layout.compressed else None
+        with laspy.open(path, laz_backend=backend) as reader:
+            header = reader.header
+            names = {name.lower(): name for name in header.point_format.extra_dimension_names}
+            spelling = next((s for s in _LAS_NORMALS if all(n in names for n in s)), None)
+            scales, offsets = header.scales, header.offsets
+            for chunk in reader.chunk_iterator(_LAS_CHUNK_POINTS):
+                # the integer records times scale plus offset, in float64 -- the full precision of the
+                # file (never cast through float32, which loses millimetres at 1e6)
+                parts.append(_as_xyz([np.asarray(chunk[axis]) * scales[i] + offsets[i]
+                                      for i, axis in enumerate("XYZ")]))
+                if spelling is not None:
+                    columns = [np.asarray(chunk[names[n]]) for n in spelling]
+                    if any(c.ndim != 1 for c in columns):
+                        raise InputError(f"{path}: {what} normal dimensions {[names[n] for n in spelling]} "
+                                         "hold several values per point, not one — re-export the file")
+                    normal_parts.append(_as_xyz(columns))
+    held = sum(len(p) for p in parts)
+    if held != layout.count:
+        raise _truncated(path, what, layout.count, held)
+    points = np.concatenate(parts) if parts else np.empty((0, 3))
+    if spelling is None:
+        return points, None
+    return points, np.concatenate(normal_parts) if normal_parts else np.empty((0, 3))
+
+
+#: Points read from an E57 scan per call into bounded buffers: memory follows what the file stores,
+#: whatever count its header claims.
+_E57_CHUNK_POINTS = 1 << 20
+_E57_CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
+_E57_SPHERICAL = ("sphericalRange", "sphericalAzimuth", "sphericalElevation")
+
+
+def _e57_pose(header, path: pathlib.Path, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Rotation matrix and translation of a scan's pose (``None`` without one), checked to be finite."""
+    if not header.has_pose():
+        return None
+    pose = header.node["pose"]
+
+    def values(name: str, keys: str, default: tuple[float, ...]) -> np.ndarray:
+        if not pose.isDefined(name):
+            return np.array(default, dtype=np.float64)
+        node = pose[name]
+        return np.array([node[k].value() if node.isDefined(k) else d for k, d in zip(keys, default)],
+                        dtype=np.float64)
+
+    q = values("rotation", "wxyz", (1.0, 0.0, 0.0, 0.0))
+    t = values("translation", "xyz", (0.0, 0.0, 0.0))
+    norm = float(np.linalg.norm(q)) if np.isfinite(q).all() else math.nan
+    if not (np.isfinite(t).all() and math.isfinite(norm) and norm > 0):
+        raise InputError(f"{path}: E57 scan {index} has a pose that is not a finite rotation and translation "
+                         f"(quaternion {q.tolist()}, translation {t.tolist()}) — re-export the file")
+    w, x, y, z = q / norm
+    rotation = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return rotation, t
+
+
+def _e57_scan(e57, index: int, path: pathlib.Path) -> np.ndarray:
+    """The valid points of scan ``index`` in the file's common frame."""
+    header = e57.get_header(index)
+    fields = set(header.point_fields)
+    if set(_E57_CARTESIAN) <= fields:
+        coords, state = _E57_CARTESIAN, "cartesianInvalidState"
+    elif set(_E57_SPHERICAL) <= fields:
+        coords, state = _E57_SPHERICAL, "sphericalInvalidState"
+    else:
+        raise InputError(f"{path}: E57 scan {index} has no cartesian or spherical coordinates (it has "
+                         f"{sorted(fields)}) — re-export the file")
+    names = list(coords) + ([state] if state in fields else [])
+    pose = _e57_pose(header, path, index)
+    declared = int(header.point_count)
+    # Bounded buffers, read until the reader has nothing more: pye57's read_scan allocates what the
+    # header claims and returns the unfilled rest as points (uninitialised memory).
+    buffers_data, buffers = e57.make_buffers(names, max(1, min(declared, _E57_CHUNK_POINTS)))
+    reader = header.points.reader(buffers)
+    parts, held = [], 0
+    try:
+        while held <= declared and (n := reader.read()):
+            held += n
+            parts.append(np.column_stack([buffers_data[name][:n].astype(np.float64) for name in names]))
+    finally:
+        reader.close()
+    if held < declared:
+        raise _truncated(path, "E57", declared, held, f"points in scan {index}")
+    if held > declared:
+        raise _more_data(path, "E57", declared, f"points in scan {index}")
+    table = np.concatenate(parts) if parts else np.empty((0, len(names)))
+    if state in fields:  # 0 marks a valid return; invalid ones are no measurement
+        table = table[table[:, 3] == 0]
+    if coords == _E57_SPHERICAL:
+        from pye57.utils import convert_spherical_to_cartesian
+
+        xyz = np.asarray(convert_spherical_to_cartesian(table[:, :3]), dtype=np.float64)
+    else:
+        xyz = table[:, :3]
+    if pose is not None:
+        rotation, translation = pose
+        xyz = xyz @ rotation.T + translation
+    return np.ascontiguousarray(xyz, dtype=np.float64)
 
 
 def _read_e57(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     pye57 = _import_extra("pye57", ".e57", "e57")
-    with _translating(path, "E57", "re-export the file"):
+    with _translating(path, "E57", "re-export the file"), np.errstate(all="ignore"):
         with pye57.E57(str(path)) as e57:
-            # Every scan, each moved into the file's common frame by its pose; invalid returns are
-            # dropped by pye57.  pye57 reads no normals, so E57 clouds come without them.
-            scans = [
-                e57.read_scan(i, transform=True, ignore_missing_fields=True) for i in range(e57.scan_count)
-            ]
+            # Every scan, each moved into the file's common frame by its pose.  pye57 reads no
+            # normals, so E57 clouds come without them.
+            scans = [_e57_scan(e57, i, path) for i in range(e57.scan_count)]
     if not scans:
         return np.empty((0, 3)), None
-    points = np.vstack([_as_xyz([s["cartesianX"], s["cartesianY"], s["cartesianZ"]]) for s in scans])
-    return points, None
+    return np.vstack(scans), None
 
 
 _READERS: dict[str, Callable[[pathlib.Path], tuple[np.ndarray, np.ndarray | None]]] = {
@@ -451,8 +993,8 @@ _READERS: dict[str, Callable[[pathlib.Path], tuple[np.ndarray, np.ndarray | None
     ".txt": _read_text,
     ".csv": _read_text,
     ".asc": _read_text,
-    ".npy": _read_npy,
-    ".npz": _read_npz,
+    ".npy": _read_numpy,
+    ".npz": _read_numpy,
     ".pcd": _read_pcd,
     ".las": _read_las,
     ".laz": _read_las,
@@ -506,7 +1048,7 @@ def read_points(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     >>> points.shape, normals is None
     ((3, 3), True)
     """
-    path = pathlib.Path(path)
+    path = _as_path(path)
     reader = _READERS.get(path.suffix.lower())
     if reader is None:
         raise InputError(
@@ -548,7 +1090,7 @@ def atomic_write(path: PathLike, write: Callable[[pathlib.Path], None]) -> None:
     >>> target.read_text()
     'done'
     """
-    path = pathlib.Path(path)
+    path = _as_path(path)
     folder = path.parent
     if path.is_dir():
         raise InputError(f"{path}: is a folder — give a file name to write")
@@ -651,17 +1193,33 @@ _MESH_WRITERS: dict[str, Callable[[pathlib.Path, np.ndarray, np.ndarray], None]]
 MESH_FORMATS: tuple[str, ...] = tuple(_MESH_WRITERS)
 
 
+def _as_table(values, name: str) -> np.ndarray:
+    """``values`` as an ``(N, 3)`` float64 array, or :class:`InputError` naming ``name``."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{name} must be a numeric (N, 3) array, got {type(values).__name__}") from None
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{name} must have shape (N, 3), got {arr.shape}")
+    return arr
+
+
 def write_points(path: PathLike, points: np.ndarray, normals: np.ndarray | None) -> None:
     """Write a point cloud (with optional normals ``nx, ny, nz``) atomically; format by suffix.
 
     PLY (binary, float64) through plyfile; ``.xyz .txt .asc`` (space separated) and ``.csv`` (with a
     header) at full precision; ``.npy`` (an (N, 3) or (N, 6) array) and ``.npz`` (``points``, ``normals``).
     """
-    path = pathlib.Path(path)
+    path = _as_path(path)
     family = POINT_WRITE_FORMATS.get(path.suffix.lower())
     if family is None:
         raise InputError(f"{path}: cannot write points as {path.suffix or '(no suffix)'!r} — "
                          f"use one of {', '.join(POINT_WRITE_FORMATS)}")
+    points = _as_table(points, "points")
+    if normals is not None:
+        normals = _as_table(normals, "normals")
+        if normals.shape != points.shape:
+            raise InputError(f"normals must have the shape of the points {points.shape}, got {normals.shape}")
     table = points if normals is None else np.column_stack([points, normals])
     names = ["x", "y", "z"] + ([] if normals is None else ["nx", "ny", "nz"])
     if family == "ply":
@@ -691,6 +1249,31 @@ def write_points(path: PathLike, points: np.ndarray, normals: np.ndarray | None)
         atomic_write(path, write)
 
 
+def write_labelled_points(path: PathLike, points, label, distance) -> None:
+    """Write points with their branch id and signed distance as a binary PLY, atomically.
+
+    The vertex element holds ``x, y, z`` (float64), ``branch`` (int32; -1 for a point on no tube) and
+    ``distance`` (float64, from the surface, positive outside; NaN where unknown): scalar fields that
+    CloudCompare and most point tools colour by or split on.
+    """
+    import plyfile
+
+    points = np.asarray(points, dtype=np.float64)
+    label = np.asarray(label).reshape(-1)
+    distance = np.asarray(distance, dtype=np.float64).reshape(-1)
+    if points.ndim != 2 or points.shape[1] != 3 or not len(points) == len(label) == len(distance):
+        raise InputError(f"labelled points need points (N, 3), label (N,) and distance (N,), got "
+                         f"{points.shape}, {label.shape}, {distance.shape}")
+    vertex = np.empty(len(points), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("branch", "<i4"),
+                                          ("distance", "<f8")])
+    vertex["x"], vertex["y"], vertex["z"] = points.T
+    vertex["branch"] = label
+    vertex["distance"] = np.where(np.isfinite(distance), distance, np.nan)
+    data = plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")], text=False, byte_order="<",
+                           comments=["written by canalsurf: branch -1 is on no tube"])
+    atomic_write(path, lambda tmp: data.write(str(tmp)))
+
+
 def write_mesh(path: PathLike, vertices, faces) -> None:
     """Write a triangle mesh, choosing the format by the file suffix (case-insensitive).
 
@@ -709,7 +1292,7 @@ def write_mesh(path: PathLike, vertices, faces) -> None:
     InputError
         Unknown suffix, arrays of the wrong shape, the 'mesh' extra missing, or an unwritable folder.
     """
-    path = pathlib.Path(path)
+    path = _as_path(path)
     writer = _MESH_WRITERS.get(path.suffix.lower())
     if writer is None:
         raise InputError(
@@ -720,18 +1303,20 @@ def write_mesh(path: PathLike, vertices, faces) -> None:
     writer(path, v, f)
 
 
-def write_spine_csv(path: PathLike, t, points, radius) -> None:
-    """Write spine samples as CSV with header ``t,x,y,z,radius`` and full float64 precision.
+def write_spine_csv(path: PathLike, t, points, radius, branch=None) -> None:
+    """Write spine samples as CSV with header ``branch,t,x,y,z,radius`` and full float64 precision.
 
     Parameters
     ----------
     path : str or os.PathLike
     t : (M,) array_like
-        Curve parameter of each sample.
+        Curve parameter of each sample (on its branch).
     points : (M, 3) array_like
         Spine points.
     radius : (M,) array_like
         Pipe/canal radius at each sample.
+    branch : (M,) array_like of int, optional
+        Branch id of each sample (default: all 0, a single tube).
 
     Notes
     -----
@@ -740,23 +1325,31 @@ def write_spine_csv(path: PathLike, t, points, radius) -> None:
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     pts = np.asarray(points, dtype=np.float64)
     r = np.asarray(radius, dtype=np.float64).reshape(-1)
-    if pts.ndim != 2 or pts.shape[1] != 3 or not len(t) == len(pts) == len(r):
+    ids = np.zeros(len(t), dtype=np.int64) if branch is None else np.asarray(branch).reshape(-1)
+    if pts.ndim != 2 or pts.shape[1] != 3 or not len(t) == len(pts) == len(r) == len(ids):
         raise InputError(
-            f"spine CSV needs t (M,), points (M, 3) and radius (M,), got {t.shape}, {pts.shape}, {r.shape}"
+            "spine CSV needs branch (M,), t (M,), points (M, 3) and radius (M,), got "
+            f"{ids.shape}, {t.shape}, {pts.shape}, {r.shape}"
         )
     table = np.column_stack([t, pts, r])
-    atomic_write(
-        path,
-        lambda tmp: np.savetxt(tmp, table, fmt="%.17g", delimiter=",", header="t,x,y,z,radius", comments=""),
-    )
+
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            f.write("branch,t,x,y,z,radius\n")
+            for b, row in zip(ids.tolist(), table):
+                f.write(f"{int(b)}," + ",".join(f"{v:.17g}" for v in row) + "\n")
+
+    atomic_write(path, write)
 
 
-def write_spine_dxf(path: PathLike, knots, control_points, degree, sample_points, sample_radius) -> None:
-    """Write the spine as a CAD drawing: one exact SPLINE plus its radius samples.
+def write_spine_dxf(path: PathLike, branches) -> None:
+    """Write the spines as a CAD drawing: one exact SPLINE per branch plus its radius samples.
 
     Parameters
     ----------
     path : str or os.PathLike
+    branches : iterable of tuple
+        Per branch ``(knots, control_points, degree, sample_points, sample_radius)``:
     knots : (n + degree + 1,) array_like
         Full knot vector of the B-spline (``BSpline.t`` in scipy).
     control_points : (n, 3) array_like
@@ -773,8 +1366,8 @@ def write_spine_dxf(path: PathLike, knots, control_points, degree, sample_points
     -----
     The drawing (DXF R2010, ezdxf extra ``dxf``) holds
 
-    * on layer ``SPINE``: one SPLINE entity built from ``knots`` and ``control_points``;
-    * on layer ``RADIUS``: one 3D POLYLINE through ``sample_points``; **each of its vertices
+    * on layer ``SPINE``: per branch one SPLINE entity built from ``knots`` and ``control_points``;
+    * on layer ``RADIUS``: per branch one 3D POLYLINE through ``sample_points``; **each of its vertices
       carries its radius as extended data** (XDATA, application ``CANALSURF``, group code 1040).
 
     Per-vertex XDATA was chosen over one XDATA list on the SPLINE because AutoCAD caps XDATA at
@@ -790,6 +1383,18 @@ def write_spine_dxf(path: PathLike, knots, control_points, degree, sample_points
         radii = [v.get_xdata("CANALSURF")[0].value for v in line.vertices]
     """
     ezdxf = _import_extra("ezdxf", ".dxf", "dxf", verb="writing")
+    doc = ezdxf.new("R2010", setup=False)
+    doc.appids.add(DXF_APPID)
+    doc.layers.add("SPINE")
+    doc.layers.add("RADIUS")
+    msp = doc.modelspace()
+    for branch in branches:
+        _add_dxf_branch(msp, *branch)
+    atomic_write(path, lambda tmp: doc.saveas(tmp))
+
+
+def _add_dxf_branch(msp, knots, control_points, degree, sample_points, sample_radius) -> None:
+    """One branch of :func:`write_spine_dxf`: its SPLINE and its radius polyline."""
     knots = np.asarray(knots, dtype=np.float64).reshape(-1)
     cps = np.asarray(control_points, dtype=np.float64)
     degree = int(degree)
@@ -807,17 +1412,10 @@ def write_spine_dxf(path: PathLike, knots, control_points, degree, sample_points
             "sample_points (M, 3) and sample_radius (M,) with M >= 2 are needed, "
             f"got {samples.shape}, {radius.shape}"
         )
-
-    doc = ezdxf.new("R2010", setup=False)
-    doc.appids.add(DXF_APPID)
-    doc.layers.add("SPINE")
-    doc.layers.add("RADIUS")
-    msp = doc.modelspace()
     msp.add_open_spline(cps.tolist(), degree=degree, knots=knots.tolist(), dxfattribs={"layer": "SPINE"})
     line = msp.add_polyline3d(samples.tolist(), dxfattribs={"layer": "RADIUS"})
     for vertex, r in zip(line.vertices, radius.tolist()):
         vertex.set_xdata(DXF_APPID, [(1040, r)])
-    atomic_write(path, lambda tmp: doc.saveas(tmp))
 
 
 def _json_default(obj: Any) -> Any:

@@ -18,13 +18,47 @@ from scipy.spatial import cKDTree
 
 from .spine import sample_arclength
 
-__all__ = ["closest_point_distance", "paper_distance", "radius_error", "compare", "angular_coverage"]
+__all__ = ["closest_point_distance", "paper_distance", "radius_error", "compare", "compare_network",
+           "angular_coverage"]
 
 #: Samples per curve for the distance measures (dense enough that sampling error is < 1e-4 length).
 N_DENSE = 20000
 #: Points per stretch of spine for the angular coverage: with 100 points spread all around, the largest
 #: angular gap is about 2 pi ln(100) / 100, i.e. a full scan reads about 340 degrees.
 COVERAGE_POINTS = 100
+
+
+def _around(points: np.ndarray, spine, t: np.ndarray, per_stretch: int):
+    """Stretch index and angle around the spine of each point.
+
+    The spine is cut into stretches of about ``per_stretch`` points each (equal counts, whatever the
+    density); in each, angles are measured around the stretch's mid tangent -- one frame per stretch,
+    so that they do not turn with the noise of each point's own tangent.
+
+    Returns
+    -------
+    bins : ndarray of int, shape (N,)
+    angle : ndarray, shape (N,)
+        In (-pi, pi].
+    n_bins : int
+        Number of stretches (0 when there are fewer than ``per_stretch`` points).
+    """
+    n_bins = len(points) // per_stretch
+    if n_bins == 0:
+        return np.empty(0, int), np.empty(0), 0
+    order = np.argsort(t, kind="stable")
+    bins = np.empty(len(t), int)
+    bins[order] = np.arange(len(t)) * n_bins // len(t)
+    mid = np.array([np.median(t[bins == b]) for b in range(n_bins)])
+    tangent = spine.derivative()(mid)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    helper = np.where(np.abs(tangent[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    e1 = np.cross(tangent, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(tangent, e1)
+    d = points - spine(t)
+    angle = np.arctan2(np.einsum("ij,ij->i", d, e2[bins]), np.einsum("ij,ij->i", d, e1[bins]))
+    return bins, angle, n_bins
 
 
 def angular_coverage(points: np.ndarray, spine, t: np.ndarray) -> np.ndarray:
@@ -47,22 +81,9 @@ def angular_coverage(points: np.ndarray, spine, t: np.ndarray) -> np.ndarray:
     ndarray
         Coverage in degrees per stretch, along the spine (empty when there are too few points).
     """
-    n_bins = len(points) // COVERAGE_POINTS
+    bins, angle, n_bins = _around(points, spine, t, COVERAGE_POINTS)
     if n_bins == 0:
         return np.empty(0)
-    # Stretches of equal point count, so each has enough points whatever the density.
-    order = np.argsort(t, kind="stable")
-    bins = np.empty(len(t), int)
-    bins[order] = np.arange(len(t)) * n_bins // len(t)
-    mid = np.array([np.median(t[bins == b]) for b in range(n_bins)])
-    tangent = spine.derivative()(mid)
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    helper = np.where(np.abs(tangent[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    e1 = np.cross(tangent, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(tangent, e1)
-    d = points - spine(t)
-    angle = np.arctan2(np.einsum("ij,ij->i", d, e2[bins]), np.einsum("ij,ij->i", d, e1[bins]))
     cover = np.empty(n_bins)
     for b in range(n_bins):
         a = np.sort(angle[bins == b])
@@ -131,3 +152,122 @@ def compare(model, truth) -> dict:
         "paper": paper_distance(truth.spine, model.spine),
         "radius": radius_error(truth.spine, truth.radius, model.spine, model.radius),
     }
+
+
+#: Branch parts within this many of the branch's radii of a junction are left out of the network
+#: accuracy figures: there the surface belongs to several tubes at once.
+JUNCTION_MARGIN_RADII = 2.5
+#: A true spine point is covered when the model's spine passes within this share of the radius.
+COVERED_RADII = 0.5
+#: Samples per radius of spine length in :func:`compare_network` (distances to the nearest sample
+#: are then at most 1/400 of the radius above those to the curve).
+NETWORK_SAMPLES_PER_RADIUS = 200
+
+
+def _dense_branch(spine, radius, junctions, ends):
+    """Arc-length samples of a branch, its radius there, and which lie away from its junctions."""
+    r_mean = float(np.mean(radius(np.linspace(0.0, 1.0, 64))))
+    length = float(np.linalg.norm(np.diff(spine(np.linspace(0.0, 1.0, 2001)), axis=0), axis=1).sum())
+    t, pts = sample_arclength(spine, max(200, int(NETWORK_SAMPLES_PER_RADIUS * length / r_mean)))
+    away = np.ones(len(t), bool)
+    for j in ends:
+        if j is not None:
+            away &= np.linalg.norm(pts - junctions[j], axis=1) > JUNCTION_MARGIN_RADII * r_mean
+    return t, pts, radius(t), away, r_mean
+
+
+def compare_network(network, truth) -> dict:
+    """Accuracy of a reconstructed network against a :class:`~canalsurf.synth.SyntheticNetwork`.
+
+    Each true branch is matched to the model branch its samples (away from junctions) lie nearest to
+    on average.  Per true branch, away from its junctions (beyond ``JUNCTION_MARGIN_RADII`` of its
+    radii): closest-point spine distance both ways (mean and max), radius error at corresponding
+    points, and the share of its whole true spine within ``COVERED_RADII`` radii of the matched model
+    spine.  Per true junction, the nearest model junction, its distance and whether the same branches
+    meet there.  Finally the point labels of ``network.classify``.
+
+    Returns
+    -------
+    dict
+        ``branches`` (list of dicts, figures relative to the branch's mean radius), ``matched`` (model
+        branch id of each true branch), ``one_to_one``, ``junctions`` (list of dicts), ``clutter_right``
+        (share of clutter points labelled -1), ``tube_right`` (share of tube points on their branch).
+    """
+    tj = np.asarray(truth.junctions).reshape(-1, 3)
+    mj = np.array([j.point for j in network.junctions]).reshape(-1, 3)
+    model = []
+    for b in network.branches:
+        t, pts, r, away, r_mean = _dense_branch(b.spine, b.radius, mj, b.ends)
+        model.append((pts, r, away))
+    trees = [cKDTree(pts) for pts, _, _ in model]
+    branches, matched = [], []
+    for tb in truth.branches:
+        t, pts, r, away, r_mean = _dense_branch(tb.spine, tb.radius, tj, tb.ends)
+        mean_d = [float(tree.query(pts[away])[0].mean()) for tree in trees]
+        m = int(np.argmin(mean_d))
+        matched.append(network.branches[m].id)
+        d_tm, near = trees[m].query(pts[away])
+        m_pts, m_r, m_away = model[m]
+        # Model samples away from its junctions that lie opposite this branch's interior.
+        d_mt, back = cKDTree(pts).query(m_pts[m_away])
+        opposite = away[back]
+        d_all = trees[m].query(pts)[0]
+        branches.append({
+            "radius": r_mean,
+            "spine_mean": max(d_tm.mean(), d_mt[opposite].mean() if opposite.any() else 0.0) / r_mean,
+            "spine_max": max(d_tm.max(), d_mt[opposite].max() if opposite.any() else 0.0) / r_mean,
+            "radius_mean": float(np.abs(m_r[near] - r[away]).mean()) / r_mean,
+            "covered": float(np.mean(d_all <= COVERED_RADII * r_mean)),
+        })
+    junctions = []
+    for j, point in enumerate(tj):
+        meeting = sorted(matched[b] for b, tb in enumerate(truth.branches) for e in tb.ends if e == j)
+        largest = max(float(np.max(tb.radius(np.linspace(0, 1, 64)))) for tb in truth.branches if j in tb.ends)
+        if len(mj) == 0:
+            junctions.append({"distance": np.inf, "largest_radius": largest, "same_branches": False})
+            continue
+        k = int(np.argmin(np.linalg.norm(mj - point, axis=1)))
+        found = sorted(b for b, _ in network.junctions[k].ends)
+        junctions.append({"distance": float(np.linalg.norm(mj[k] - point)), "largest_radius": largest,
+                          "same_branches": found == meeting})
+    label, _ = network.classify(truth.points)
+    clutter = truth.label < 0
+    expected = np.array(matched)[np.maximum(truth.label, 0)]
+    return {
+        "branches": branches, "matched": matched, "one_to_one": len(set(matched)) == len(matched),
+        "junctions": junctions,
+        "clutter_right": float(np.mean(label[clutter] < 0)) if clutter.any() else 1.0,
+        "tube_right": float(np.mean(label[~clutter] == expected[~clutter])),
+    }
+
+
+#: Angular sectors and points per stretch of :func:`roundness`.
+ROUNDNESS_SECTORS = 8
+ROUNDNESS_POINTS = 200
+#: A cell needs this many points for its median residual to count.
+ROUNDNESS_MIN_CELL = 5
+
+
+def roundness(points: np.ndarray, spine, t: np.ndarray, residual: np.ndarray) -> float:
+    """RMS of the median residual per cell of (stretch along the spine, sector around it).
+
+    On a tube the residuals are noise and each cell's median is near 0; on a shape that is not round
+    in cross-section (a box, a duct, a flattened or doubled cloud) whole sectors lie systematically
+    outside or inside the fitted circle.  Stretches hold about ``ROUNDNESS_POINTS`` points each.
+
+    Returns
+    -------
+    float
+        In the units of ``residual`` (divide by the radius for a share); 0 with too few points.
+    """
+    bins, angle, n_bins = _around(points, spine, t, ROUNDNESS_POINTS)
+    if n_bins == 0:
+        return 0.0
+    sector = np.minimum(((angle + np.pi) / (2 * np.pi) * ROUNDNESS_SECTORS).astype(int), ROUNDNESS_SECTORS - 1)
+    cell = bins * ROUNDNESS_SECTORS + sector
+    medians = []
+    for c in np.unique(cell):
+        r = residual[cell == c]
+        if len(r) >= ROUNDNESS_MIN_CELL:
+            medians.append(np.median(r))
+    return float(np.sqrt(np.mean(np.square(medians)))) if medians else 0.0

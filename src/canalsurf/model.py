@@ -10,12 +10,16 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.interpolate import BSpline
 
+from ._validate import MAX_COORDINATE
 from .errors import InputError
 from .spine import constant_spline, sample_arclength
 
@@ -47,6 +51,10 @@ class CanalModel:
         stage, ...  (``model.json`` leaves out the seconds, so the same input gives the same file.)
     stages : dict, optional
         Intermediate clouds (``normals``, ``shrunk``, ``thin``) for figures; not saved.
+    id : int
+        The branch's id in its :class:`~canalsurf.network.Network` (0 for a single tube).
+    ends : tuple of (int or None, int or None)
+        Junction id at ``t = 0`` and at ``t = 1`` in the network; ``None`` for an open end.
     """
 
     kind: str
@@ -56,6 +64,8 @@ class CanalModel:
     parameters: dict = field(default_factory=dict)
     diagnostics: dict = field(default_factory=dict)
     stages: dict | None = field(default=None, repr=False, compare=False)
+    id: int = 0
+    ends: tuple = (None, None)
 
     def sample(self, n: int = N_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
         """``n`` points evenly spaced in arc length along the spine, and the radius at each.
@@ -73,9 +83,10 @@ class CanalModel:
         """Radius averaged along the spine."""
         return float(np.mean(self.sample()[1]))
 
-    def to_dict(self) -> dict:
-        """The ``model.json`` content (plain JSON types); timings are left out, as they vary by run."""
-        t, pts = sample_arclength(self.spine, N_SAMPLES)
+    def to_dict(self, n_samples: int = N_SAMPLES) -> dict:
+        """The version 1 ``model.json`` content (plain JSON types) with ``n_samples`` samples; timings
+        are left out, as they vary by run."""
+        t, pts = sample_arclength(self.spine, n_samples)
         if self.kind == "pipe":
             radius = {"constant": float(self.radius.c[0])}
         else:
@@ -117,45 +128,116 @@ def _plain(obj):
     return obj
 
 
-def model_from_dict(data: dict, source: str = "model") -> CanalModel:
-    """Build a :class:`CanalModel` from ``model.json`` content, checking format and version."""
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise InputError(f"{source}: not a canalsurf model (no \"format\": \"{FORMAT}\") — "
-                         "give a model.json written by canalsurf")
-    if data.get("version") != VERSION:
-        raise InputError(f"{source}: model version {data.get('version')!r} is not supported "
-                         f"(this canalsurf reads version {VERSION}) — re-run the reconstruction")
-    try:
-        sp = data["spine"]
-        spine = BSpline(np.asarray(sp["knots"], float), np.asarray(sp["control_points"], float),
-                        int(sp["degree"]))
-        rad = data["radius"]
-        if "constant" in rad:
-            radius = constant_spline(float(rad["constant"]))
-        else:
-            radius = BSpline(np.asarray(rad["knots"], float), np.asarray(rad["coefficients"], float),
-                             int(rad["degree"]))
-        kind = data["kind"]
-        closed = bool(sp["closed"])
-        if kind not in ("pipe", "canal") or spine.c.ndim != 2 or spine.c.shape[1] != 3:
-            raise ValueError("bad kind or spine shape")
-        if not (np.isfinite(spine.c).all() and np.isfinite(radius.c).all()):
-            raise ValueError("non-finite coefficients")
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise InputError(f"{source}: corrupted model ({exc}) — re-run the reconstruction") from None
-    return CanalModel(kind, spine, radius, closed, dict(data.get("parameters", {})),
-                      dict(data.get("diagnostics", {})))
+#: Largest model file read: a spine of 100,000 control points with its samples takes about 10 MB, so
+#: a larger file is not a model -- and is refused before it is read into memory.
+MAX_MODEL_BYTES = 64 << 20
+#: Deepest nesting of arrays and objects in a model file: canalsurf writes 4 levels (a network 5);
+#: parameters and diagnostics may add a few.  The JSON parser recurses, so the depth must be bounded.
+MAX_JSON_DEPTH = 32
+#: Most digits of an integer in a model file: every integer canalsurf writes is a count or a degree,
+#: and JSON readers in other languages hold integers as int64 (19 digits) or float64.
+MAX_INT_DIGITS = 18
+#: Degrees a spline in a model file may have: canalsurf writes cubics; beyond quintics a fit only
+#: oscillates, and no canal surface needs one.
+MIN_DEGREE, MAX_DEGREE = 1, 5
+#: Longest repr of a bad value quoted in a message (a 400-digit number stays readable).
+_SHOWN_CHARS = 40
 
 
-def load_model(path) -> CanalModel:
-    """Read a ``model.json`` written by :meth:`CanalModel.save`.
+class _BadNumber(Exception):
+    """A JSON number no model can hold (NaN, Infinity, an overflowing float, a 400-digit integer)."""
+
+
+def _parse_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise _BadNumber(text)
+    return int(text)
+
+
+def _parse_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):  # 1e400 parses to inf
+        raise _BadNumber(text)
+    return value
+
+
+def _parse_constant(text: str):
+    raise _BadNumber(text)  # NaN, Infinity, -Infinity: not JSON, though Python writes them
+
+
+def _short(text: str) -> str:
+    return text if len(text) <= _SHOWN_CHARS else text[: _SHOWN_CHARS - 3] + "..."
+
+
+def _shown(value) -> str:
+    """A bad value for a message, spelled as in JSON where it differs from Python, shortened."""
+    return _short(json.dumps(value) if value is None or isinstance(value, bool) else repr(value))
+
+
+def _json_type(value) -> str:
+    if value is None or isinstance(value, bool):
+        return _shown(value)
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    return "a number" if _is_number(value) else type(value).__name__
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def _corrupted(source: str, problem: str) -> InputError:
+    return InputError(f"{source}: corrupted model ({problem}) — re-run the reconstruction")
+
+
+def _depth(obj) -> int:
+    """Nesting depth of arrays and objects (1 for a flat list, 0 for a number), without recursion.
+
+    The walk stops once the depth passes ``MAX_JSON_DEPTH``.
+    """
+    if not isinstance(obj, (dict, list)):
+        return 0
+    deepest, stack = 0, [(obj, 1)]
+    while stack and deepest <= MAX_JSON_DEPTH:
+        item, level = stack.pop()
+        deepest = max(deepest, level)
+        children = item.values() if isinstance(item, dict) else item
+        stack.extend((c, level + 1) for c in children if isinstance(c, (dict, list)))
+    return deepest
+
+
+def read_model_json(path) -> object:
+    """The parsed JSON of a model file, with the checks every model file (any version) gets.
+
+    The size is checked before reading (``MAX_MODEL_BYTES``), the nesting depth while and after
+    parsing (``MAX_JSON_DEPTH``), and every number as it is parsed: NaN, Infinity, floats beyond
+    float64 and integers of more than ``MAX_INT_DIGITS`` digits are refused.
 
     Raises
     ------
     InputError
-        If the file is missing, not JSON, of another format or version, or corrupted.
+        The file is missing, unreadable, too large, not JSON, or holds such numbers or nesting.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"model path must be a file path (str or os.PathLike), got {type(path).__name__}")
     path = Path(path)
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file — check the path") from None
+    except (OSError, ValueError) as exc:
+        reason = getattr(exc, "strerror", None) or exc.__class__.__name__
+        raise InputError(f"{path}: cannot read the model ({reason}) — give a model.json file") from None
+    if not (stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode)):
+        # a named pipe would block the read, a device never end
+        raise InputError(f"{path}: cannot read the model (not a regular file) — give a model.json file")
+    if info.st_size > MAX_MODEL_BYTES:
+        raise InputError(f"{path}: is {info.st_size / 2**20:.0f} MiB, more than the {MAX_MODEL_BYTES >> 20} MiB "
+                         "a model file can take — give a model.json written by canalsurf")
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -164,9 +246,192 @@ def load_model(path) -> CanalModel:
         reason = getattr(exc, "strerror", None) or exc.__class__.__name__
         raise InputError(f"{path}: cannot read the model ({reason}) — "
                          "give a model.json file") from None
+    nested = InputError(f"{path}: not a model (its JSON nests deeper than {MAX_JSON_DEPTH} levels) — the file "
+                        "is corrupted; re-run the reconstruction")
     try:
-        data = json.loads(text)
+        data = json.loads(text, parse_int=_parse_int, parse_float=_parse_float, parse_constant=_parse_constant)
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}) — "
                          "the file is corrupted; re-run the reconstruction") from None
-    return model_from_dict(data, str(path))
+    except RecursionError:
+        raise nested from None
+    except _BadNumber as exc:
+        raise _corrupted(str(path), f"the number {_short(str(exc))} is out of range: models hold finite "
+                                    f"float64 numbers and integers of at most {MAX_INT_DIGITS} digits") from None
+    if _depth(data) > MAX_JSON_DEPTH:
+        raise nested
+    return data
+
+
+def _array(value, what: str, source: str, width: int | None = None) -> np.ndarray:
+    """A list of finite numbers (``width`` None) or of ``width``-number lists, as a float64 array."""
+    if width is None:
+        expected, fits = "a list of numbers", _is_number
+    else:
+        expected = "a list of [x, y, z] points" if width == 3 else f"a list of {width}-number lists"
+
+        def fits(row) -> bool:
+            return isinstance(row, list) and len(row) == width and all(_is_number(v) for v in row)
+
+    if not isinstance(value, list):
+        raise _corrupted(source, f"{what} must be {expected}, got {_json_type(value)}")
+    bad = next((i for i, item in enumerate(value) if not fits(item)), None)
+    if bad is not None:
+        item = value[bad]
+        shown = f"a list of {len(item)}" if isinstance(item, list) else _json_type(item)
+        raise _corrupted(source, f"{what} must be {expected}; item {bad} is {shown}")
+    try:
+        arr = np.array(value, dtype=np.float64).reshape(len(value), *(() if width is None else (width,)))
+    except OverflowError:
+        arr = np.full(1, np.inf)
+    if not np.isfinite(arr).all() or (arr.size and np.abs(arr).max() > MAX_COORDINATE):
+        raise _corrupted(source, f"{what} must be finite numbers of at most {MAX_COORDINATE:.0e} in size")
+    return arr
+
+
+def spline_from_dict(data, what: str, source: str) -> BSpline:
+    """A B-spline from its model-file form, with every invariant of the format checked.
+
+    Parameters
+    ----------
+    data : dict
+        ``{"degree", "knots", "control_points"}`` (a curve in 3-D, e.g. a spine) or
+        ``{"degree", "knots", "coefficients"}`` (a scalar function, e.g. a radius); other keys
+        (``closed``) are left to the caller.
+    what : str
+        What the spline is, for messages (``"spine"``, ``"branch 3 radius"``).
+    source : str
+        Where it comes from (the file), for messages.
+
+    Returns
+    -------
+    scipy.interpolate.BSpline
+
+    Raises
+    ------
+    InputError
+        ``"<source>: corrupted model (<what> ...) — re-run the reconstruction"`` unless: ``data`` is an
+        object with exactly one of ``control_points`` / ``coefficients``; ``degree`` is an integer
+        (not a bool or a float) from ``MIN_DEGREE`` to ``MAX_DEGREE``; knots and coefficients are
+        finite numbers of at most ``MAX_COORDINATE`` (control points ``[x, y, z]`` lists of them);
+        there are at least ``degree + 1`` coefficients and exactly ``coefficients + degree + 1``
+        knots; the knots never decrease; and the spline's domain ``knots[degree] .. knots[-degree-1]``
+        is exactly [0, 1] -- clamped there for an open spline, periodically extended past it (the
+        full knot vector of a closed one) otherwise.
+    """
+    if not isinstance(data, dict):
+        raise _corrupted(source, f"{what} must be an object, got {_json_type(data)}")
+    if ("control_points" in data) == ("coefficients" in data):
+        raise _corrupted(source, f"{what} needs either control_points or coefficients")
+    key = "control_points" if "control_points" in data else "coefficients"
+    degree = data.get("degree")
+    if type(degree) is not int or not MIN_DEGREE <= degree <= MAX_DEGREE:
+        raise _corrupted(source, f"{what} degree must be an integer from {MIN_DEGREE} to {MAX_DEGREE}, "
+                                 f"got {_shown(degree)}")
+    knots = _array(data.get("knots"), f"{what} knots", source)
+    coefficients = _array(data[key], f"{what} {key}", source, 3 if key == "control_points" else None)
+    n = len(coefficients)
+    if n < degree + 1:
+        raise _corrupted(source, f"{what} has {n} {key}; degree {degree} needs at least {degree + 1}")
+    if len(knots) != n + degree + 1:
+        raise _corrupted(source, f"{what} has {len(knots)} knots; {n} {key} of degree {degree} need "
+                                 f"{n + degree + 1}")
+    if np.any(np.diff(knots) < 0):
+        raise _corrupted(source, f"{what} knots decrease at index {int(np.argmax(np.diff(knots) < 0)) + 1}")
+    if knots[degree] != 0.0 or knots[-degree - 1] != 1.0:
+        raise _corrupted(source, f"{what} is defined on [{knots[degree]:.6g}, {knots[-degree - 1]:.6g}], "
+                                 "not on [0, 1]")
+    return BSpline(knots, coefficients, degree)
+
+
+def radius_from_dict(data, what: str, source: str) -> BSpline:
+    """The radius r(t) from its model-file form, checked to be positive on [0, 1].
+
+    ``{"constant": r}`` (a pipe) gives a constant spline; anything else must be a scalar B-spline
+    (:func:`spline_from_dict`, ``coefficients``) whose values at ``N_SAMPLES`` even parameters and at
+    its knots in [0, 1] are positive.  Raises :class:`InputError` as :func:`spline_from_dict`.
+    """
+    if isinstance(data, dict) and "constant" in data:
+        value = data["constant"]
+        try:
+            ok = _is_number(value) and math.isfinite(float(value)) and 0 < float(value) <= MAX_COORDINATE
+        except OverflowError:
+            ok = False
+        if not ok:
+            raise _corrupted(source, f"{what} constant must be a positive number, got {_shown(value)}")
+        return constant_spline(float(value))
+    spline = spline_from_dict(data, what, source)
+    if spline.c.ndim != 1:
+        raise _corrupted(source, f"{what} must be a scalar spline (coefficients, not control points)")
+    t = np.union1d(np.linspace(0.0, 1.0, N_SAMPLES), spline.t[(spline.t >= 0) & (spline.t <= 1)])
+    r = spline(t)
+    if not (np.isfinite(r).all() and r.min() > 0):
+        raise _corrupted(source, f"{what} must be positive on [0, 1], its least value there is {r.min():.4g}")
+    return spline
+
+
+def model_from_dict(data: dict, source: str = "model") -> CanalModel:
+    """Build a :class:`CanalModel` from ``model.json`` content (version 1), checking every field.
+
+    Format and version come first (a file of another kind or version is named as such), then the
+    kind, the spine and radius (:func:`spline_from_dict`, :func:`radius_from_dict`), ``closed``, the
+    samples when present (three lists of equal length), and that parameters and diagnostics, when
+    present, are objects.
+
+    Raises
+    ------
+    InputError
+        Any of these does not hold (one line naming the problem).
+    """
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise InputError(f"{source}: not a canalsurf model (no \"format\": \"{FORMAT}\") — "
+                         "give a model.json written by canalsurf")
+    version = data.get("version")
+    if type(version) is not int or version != VERSION:  # neither true nor 1.0
+        raise InputError(f"{source}: model version {_shown(version)} is not supported "
+                         f"(this canalsurf reads version {VERSION}) — re-run the reconstruction")
+    kind = data.get("kind")
+    if not (isinstance(kind, str) and kind in ("pipe", "canal")):
+        raise _corrupted(source, f"kind must be \"pipe\" or \"canal\", got {_shown(kind)}")
+    sp = data.get("spine")
+    spine = spline_from_dict(sp, "spine", source)
+    if spine.c.ndim != 2:
+        raise _corrupted(source, "spine must have control_points [x, y, z]")
+    closed = sp.get("closed")
+    if not isinstance(closed, bool):
+        raise _corrupted(source, f"spine closed must be true or false, got {_shown(closed)}")
+    rad = data.get("radius")
+    radius = radius_from_dict(rad, "radius", source)
+    if (kind == "pipe") != ("constant" in rad):
+        raise _corrupted(source, f"a {kind} has {'a constant radius' if kind == 'pipe' else 'a radius B-spline'}")
+    if "samples" in data:
+        samples = data["samples"]
+        if not isinstance(samples, dict):
+            raise _corrupted(source, f"samples must be an object, got {_json_type(samples)}")
+        lengths = {len(_array(samples.get("t"), "samples t", source)),
+                   len(_array(samples.get("points"), "samples points", source, 3)),
+                   len(_array(samples.get("radius"), "samples radius", source))}
+        if len(lengths) != 1:
+            raise _corrupted(source, "samples t, points and radius differ in length")
+    extras = {}
+    for key in ("parameters", "diagnostics"):
+        extras[key] = data.get(key, {})
+        if not isinstance(extras[key], dict):
+            raise _corrupted(source, f"{key} must be an object, got {_json_type(extras[key])}")
+    return CanalModel(kind, spine, radius, closed, dict(extras["parameters"]), dict(extras["diagnostics"]))
+
+
+def load_model(path):
+    """Read a ``model.json`` written by canalsurf: a :class:`~canalsurf.network.Network`.
+
+    Version 2 files hold a network; a version 1 file (one tube) is read as a network of one branch.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, not JSON, of another format or version, or corrupted.
+    """
+    data = read_model_json(path)
+    from .network import network_from_dict
+
+    return network_from_dict(data, str(Path(path)))

@@ -14,9 +14,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from .constants import NORMAL_NEIGHBOURS, ORIENT_NEIGHBOURS
+from .constants import NORMAL_NEIGHBOURS, ORIENT_LINK_REACH, ORIENT_NEIGHBOURS
 
-__all__ = ["estimate_normals", "orient_normals"]
+__all__ = ["estimate_normals", "orient_normals", "point_inward"]
 
 
 def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -51,6 +51,24 @@ def estimate_normals(points: np.ndarray, *, k: int | None = None, tree: cKDTree 
     return orient_normals(points, normals, idx[:, : min(k, ORIENT_NEIGHBOURS + 1)])
 
 
+def _divergence(points, normals, rows, cols) -> np.ndarray:
+    """``(n_j - n_i) . (p_j - p_i)`` of each neighbour pair: summed, positive for outward normals."""
+    return np.einsum("ij,ij->i", normals[cols] - normals[rows], points[cols] - points[rows])
+
+
+def point_inward(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray) -> bool:
+    """Whether given normals point inward on the whole (their mean-curvature vote is negative).
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+    neighbours : ndarray of int, shape (N, k)
+        Neighbour indices of each point.
+    """
+    rows = np.repeat(np.arange(len(points)), neighbours.shape[1])
+    return bool(_divergence(points, normals, rows, neighbours.ravel()).sum() < 0)
+
+
 def _propagated_signs(parent: np.ndarray, flip: np.ndarray) -> np.ndarray:
     """Product of ``flip`` along each node's path to its root, by pointer jumping (log depth passes)."""
     sign = flip.copy()
@@ -82,7 +100,12 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
     n = len(points)
     rows = np.repeat(np.arange(n), neighbours.shape[1])
     cols = neighbours.ravel()
-    keep = rows != cols
+    length = np.linalg.norm(points[rows] - points[cols], axis=1)
+    reach = length.reshape(n, -1).max(axis=1)  # distance to each point's farthest listed neighbour
+    # A link far longer than the neighbourhoods at both of its ends bridges two surfaces (a sparse
+    # floor under a pipe lists the pipe's underside among its neighbours): orientation must not
+    # travel across it -- the normals there are parallel, so the spanning tree would prefer it.
+    keep = (rows != cols) & (length <= ORIENT_LINK_REACH * np.minimum(reach[rows], reach[cols]))
     rows, cols = rows[keep], cols[keep]
     # Weight 1 - |cos| prefers links between nearly parallel normals; the floor keeps zero-weight
     # links (which sparse graphs would drop) in the graph.
@@ -103,7 +126,6 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
     flip[flip == 0] = 1.0
     oriented = normals * _propagated_signs(parent, flip)[:, None]
 
-    vote = np.einsum("ij,ij->i", oriented[cols] - oriented[rows], points[cols] - points[rows])
-    part_vote = np.bincount(label[rows], weights=vote, minlength=n_parts)
+    part_vote = np.bincount(label[rows], weights=_divergence(points, oriented, rows, cols), minlength=n_parts)
     oriented *= np.where(part_vote[label] < 0, -1.0, 1.0)[:, None]
     return oriented

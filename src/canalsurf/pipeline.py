@@ -1,42 +1,71 @@
-"""The whole reconstruction: normals -> shrinking -> MLS thinning -> ordering/spine -> radius -> refinement.
+"""The whole reconstruction, as the paper's outline plus what a network of tubes needs:
+
+prepare -> normals -> shrink -> thin -> skeleton -> fit each branch -> junctions -> checks -> network.
 
 The input is first moved to its centroid and scaled to unit RMS size, so no stage sees georeferenced
-coordinates or a particular unit; the model is mapped back at the end and every parameter is reported in
-the input's units.
+coordinates or a particular unit; the result is mapped back at the end and every parameter is
+reported in the input's units.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
 from . import constants as C
-from ._validate import as_normals, as_points, choice, in_range, positive
+from ._validate import MIN_POINTS, as_normals, as_points, choice, in_range, positive
 from .errors import InputError, ReconstructionError
-from .metrics import angular_coverage
+from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
-from .normals import estimate_normals
-from .order import order_curve
-from .radius import curvature_radius, pipe_radius, prefer_canal
-from .refine import footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
+from .network import Junction, Network, classify_points
+from .normals import estimate_normals, point_inward
+from .radius import curvature_radius, prefer_canal, principal_curvature
+from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import shrink, shrink_by_concentration
-from .spine import constant_spline, pspline_fit
-from .thin import mls_thin
+from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
+from .spine import arclength_reparametrize, constant_spline, curve_length, pspline_fit
 
 __all__ = ["reconstruct", "STAGES"]
 
 #: Stage names, in the order ``progress`` reports them.
-STAGES = ("normals", "shrink", "thin", "order", "radius", "refine", "residual")
+STAGES = ("normals", "shrink", "thin", "skeleton", "fit", "junctions", "residual")
 
 log = logging.getLogger(__name__)
 
-#: A cloud whose RMS distance from the fitted surface exceeds this share of the radius is not a tube.
-MAX_RELATIVE_RESIDUAL = 0.25
+#: A branch whose inlier RMS distance from its fitted surface exceeds this share of its radius is not a
+#: tube: uniform noise of +-10 % of the radius, the most the tests allow, gives 6 %; a fit through a
+#: blob of points 20 - 25 %.
+MAX_RELATIVE_RESIDUAL = 0.15
+#: ... or that fewer points than this lie on (the checks below need a stretch of ROUNDNESS_POINTS
+#: points to measure roundness; fewer cannot show a tube from a blob)
+MIN_CHECKED_POINTS = ROUNDNESS_POINTS
+#: ... or whose sectors around the spine lie systematically farther off it than this share of its
+#: radius (:func:`canalsurf.metrics.roundness`): a scanned pipe is round to a few per cent, a box or a
+#: square duct fitted by a tube is 10 - 30 % off at its corners and faces.
+MAX_OUT_OF_ROUND = 0.08
+#: ... or whose inlier RMS exceeds this many times the scan's own noise (:func:`_scan_noise`) and
+#: this share of its radius: a tube fitted to clutter (a box, a corner) misfits its points several
+#: times the noise, a scanned tube about once (the share keeps a scan's largest tubes, whose absolute
+#: noise may be above the scan's median, from being judged by its smallest).
+SCAN_NOISE_RATIO = 3.0
+TUBE_RELATIVE_RESIDUAL = 0.03
+#: Points within this many radii (the largest meeting there) of a junction do not take part in the
+#: fit of any branch: there the surface belongs to several tubes at once.
+JUNCTION_EXCLUSION_RADII = 1.5
+#: Before the fits, a point is given to the nearest branch only if it lies within this many of that
+#: branch's radii of the first tube estimate (farther points: clutter, not fitted).
+ASSIGN_RADII = 0.5
+#: ... the first estimate continued this many radii past its open ends (the thin set may stop short).
+ASSIGN_END_RADII = 1.0
+#: Rounds of "fit, drop the branches that are no tube, join the branches they separated".
+MAX_FIT_ROUNDS = 3
 
 
 class _Timer(dict):
@@ -55,6 +84,37 @@ class _Timer(dict):
         self[stage] = round(time.perf_counter() - start, 4)
 
 
+@dataclass
+class _Scan:
+    """The input, normalised, with the seeded subsets the stages work on."""
+
+    origin: np.ndarray
+    scale: float
+    all_pts: np.ndarray          # every point, normalised
+    all_normals: np.ndarray | None
+    draw: np.ndarray | None      # seeded permutation for large scans
+    pts: np.ndarray              # the paper's stages' subset
+    normals: np.ndarray | None
+    fit_pts: np.ndarray          # the final fit's subset (a superset of pts' draw)
+
+
+@dataclass
+class _BranchFit:
+    """One branch fitted in normalised coordinates."""
+
+    kind: str
+    spine: BSpline
+    radius: BSpline
+    closed: bool
+    ends: tuple
+    reach: float
+    eq6: float
+    segments: tuple
+    residual: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+
+
 def _segments(length: float, spacing: float, n_points: int) -> int:
     """Knot intervals: one per ``spacing`` of length, but enough points per interval."""
     return int(max(1, min(round(length / spacing), n_points // C.POINTS_PER_SEGMENT)))
@@ -63,18 +123,19 @@ def _segments(length: float, spacing: float, n_points: int) -> int:
 def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = None,
                 delta: float | None = None, mu: float | None = None, tau: float | None = None,
                 H: float | None = None, k: int | None = None, stop: str = "auto",
-                neighbours: str = "kdtree", refine: bool = True, progress=None) -> CanalModel:
-    """Reconstruct a pipe or canal surface from an unorganized point cloud.
+                neighbours: str = "kdtree", refine: bool = True, progress=None) -> Network:
+    """Reconstruct the pipe and canal surfaces of an unorganized point cloud: one tube or a network.
 
     Parameters
     ----------
     points : array_like, shape (N, 3)
-        The scan.  Any units and placement.
+        The scan.  Any units and placement; one tube, a branching network, several tubes, and
+        clutter (points on no tube are left out).
     normals : array_like, shape (N, 3), optional
         Outward unit normals.  Estimated (regression planes, oriented outward) when not given.
     kind : {"auto", "pipe", "canal"}
         ``"pipe"``: constant radius, Algorithm 1.  ``"canal"``: radius function, Algorithm 2.
-        ``"auto"``: Algorithm 2, then a pipe unless a radius function is clearly better.
+        ``"auto"``: Algorithm 2, then per branch a pipe unless a radius function is clearly better.
     R, delta, mu, tau, H : float, optional
         The paper's parameters: neighbour radius, shrink step, break portion, canal normal tolerance,
         MLS weighting radius.  Defaults derive from a first radius estimate ``r0`` (median inverse
@@ -89,42 +150,89 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     neighbours : {"kdtree", "gauss"}
         Neighbour search of the shrinking: KD-tree pairs, or the paper's Gauss-map grouping.
     refine : bool
-        Fit spine and radius to all points after the paper's pipeline (default).  ``False`` returns the
-        paper's own result: spline through the thin set, Eq. (6) or the fitted ``r_i``.
+        Fit spine and radius of each branch to its points after the paper's pipeline (default).
+        ``False`` returns the paper's own result: spline through the thin set, Eq. (6) or the fitted
+        ``r_i``.
     progress : callable, optional
-        Called with the name of each stage (``"normals"``, ``"shrink"``, ``"thin"``, ``"order"``,
-        ``"radius"``, ``"refine"``) as it starts.
+        Called with the name of each stage (see ``STAGES``) as it starts.
 
     Returns
     -------
-    CanalModel
+    Network
+        Branches (each a pipe or canal surface), junctions, parameters and diagnostics.  A single
+        tube is a network of one branch, which also answers ``kind``, ``spine``, ``radius``, ...
 
     Raises
     ------
     InputError
         Invalid points or parameters.
     ReconstructionError
-        The points are valid but do not form a tube the method can follow.
+        The points are valid but no part of them forms a tube the method can follow.
 
     Examples
     --------
     >>> import canalsurf
     >>> tube = canalsurf.make_tube("fig9-pipe", rng=1)
     >>> model = canalsurf.reconstruct(tube.points)
-    >>> model.kind, round(model.mean_radius, 1)
-    ('pipe', 1.0)
+    >>> len(model.branches), model.kind, round(model.mean_radius, 1)
+    (1, 'pipe', 1.0)
     """
     timer = _Timer(progress)
-    raw = as_points(points)
     kind = choice(kind, "kind", ("auto", "pipe", "canal"))
     stop = choice(stop, "stop", ("auto", "paper"))
     neighbours = choice(neighbours, "neighbours", ("kdtree", "gauss"))
     R, delta, H = positive(R, "R"), positive(delta, "delta"), positive(H, "H")
     mu = in_range(mu, "mu", 0.0, 1.0)
     tau = in_range(tau, "tau", -1.0, 1.0)
+    if not isinstance(refine, bool):
+        raise InputError(f"refine must be True or False, got {refine!r}")
+    scan = _prepare(points, normals, k)
+    with timer("normals"):
+        scan, nrm, r0, area_per_point, curved, noise = _normals(scan, k, flat_out=stop == "auto")
+    algo = "pipe" if kind == "pipe" else "canal"
+    p = _parameters(r0, area_per_point, scan.scale, R=R, delta=delta, mu=mu, tau=tau, H=H, algo=algo,
+                    stop=stop)
+    with timer("shrink"):
+        sr, kept = _shrink(scan.pts[curved], nrm[curved], p, r0, algo=algo, stop=stop, neighbours=neighbours)
+    with timer("thin"):
+        shrunk = sr.points[kept]
+        thin = _thin(shrunk, p["H"])
+        r_i = np.linalg.norm(scan.pts[curved[kept]] - thin, axis=1)
+    with timer("skeleton"):
+        skel = skeletonize(thin, r_i, spacing=C.ORDER_VOXEL_PER_H * p["H"])
+    with timer("fit"):
+        skel, fits = _fit_network(scan.fit_pts, skel, kind=kind, refine=refine, noise=noise)
+    with timer("junctions"):
+        fits, junction_points = _join_at_junctions(fits, skel)
+    with timer("residual"):
+        branches, summary = _check_and_describe(scan, fits)
+    network = _to_input_units(branches, junction_points, fits, scan)
+    network.parameters = _reported_parameters(p, scan.scale, k=k, r0=r0, stop=stop, neighbours=neighbours,
+                                              refine=refine)
+    network.diagnostics = {
+        "n_points": len(scan.all_pts), "n_shrink_points": len(scan.pts), "n_fit_points": len(scan.fit_pts),
+        "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]), "stop_rule": sr.stop_rule,
+        "points_reached_spine": int(len(kept)), "eq6_radius": float(r_i.mean()) * scan.scale,
+        "n_branches": len(network.branches),
+        "n_junctions": len(network.junctions), "n_components": len(network.components),
+        **{key: (val * scan.scale if key in ("rms_residual", "inlier_rms_residual", "noise_sigma") else val)
+           for key, val in summary.items()},
+        "seconds": dict(timer),
+    }
+    network.stages = {"normals": nrm, "shrunk": shrunk * scan.scale + scan.origin,
+                      "thin": thin * scan.scale + scan.origin, "break_counts": sr.break_counts}
+    return network
+
+
+# --------------------------------------------------------------------------------------------------
+# prepare, normals, parameters, shrink, thin
+
+
+def _prepare(points, normals, k) -> _Scan:
+    """Validate, normalise, and draw the seeded subsets of a large scan."""
+    raw = as_points(points)
     if k is not None and not (3 <= int(k) <= len(raw)):
         raise InputError(f"k must be between 3 and the number of points ({len(raw)}), got {k!r}")
-
     origin = raw.mean(axis=0)
     scale = float(np.sqrt(((raw - origin) ** 2).sum(axis=1).mean()))
     if not scale > 0:
@@ -132,46 +240,82 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     pts = (raw - origin) / scale
     if np.linalg.svd(pts[:: max(1, len(pts) // 5000)], compute_uv=False)[-1] < 1e-9 * np.sqrt(len(pts)):
         raise InputError("the points are coplanar or collinear — a tube needs a 3D scan")
-
     given = None if normals is None else as_normals(normals, len(pts))
     # A large scan is worked on through seeded random subsets (they keep its density pattern): the
-    # paper's stages see MAX_SHRINK_POINTS (more for a long, thin tube) -- k-nearest-neighbour normals
-    # and curvature get noisier, not better, as the density grows -- and the final fit at most
-    # MAX_FIT_POINTS, a superset from the same draw.  At most MAX_RESIDUAL_POINTS of them are measured against the result.
-    all_pts, all_given = pts, given
+    # paper's stages see MAX_SHRINK_POINTS (more for long, thin tubes and scenes) -- k-nearest-neighbour
+    # normals and curvature get noisier, not better, as the density grows -- and the final fit at most
+    # MAX_FIT_POINTS, a superset from the same draw.
     draw = np.random.default_rng(0).permutation(len(pts)) if len(pts) > C.MAX_SHRINK_POINTS else None
-    fit_pts = all_pts if draw is None else all_pts[np.sort(draw[: C.MAX_FIT_POINTS])]
-    if draw is not None:
-        pick = np.sort(draw[: C.MAX_SHRINK_POINTS])
-        pts = pts[pick]
-        given = None if given is None else given[pick]
+    if draw is None:
+        return _Scan(origin, scale, pts, given, None, pts, given, pts)
+    pick = np.sort(draw[: C.MAX_SHRINK_POINTS])
+    return _Scan(origin, scale, pts, given, draw, pts[pick], None if given is None else given[pick],
+                 pts[np.sort(draw[: C.MAX_FIT_POINTS])])
 
-    with timer("normals"):
-        for attempt in range(2):
-            tree = cKDTree(pts)
-            nrm = estimate_normals(pts, k=k, tree=tree) if given is None else given
-            r0 = curvature_radius(pts, nrm, tree=tree)
-            dist, nbr = tree.query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)), workers=-1)
-            dk = dist[:, -1]
-            # Mean area per point is pi d_k^2 / k for the k-th neighbour distance d_k.
-            area_per_point = np.pi * np.mean(dk**2) / C.NORMAL_NEIGHBOURS
-            if draw is None or attempt or not np.isfinite(r0):
-                break
-            # A long, thin tube spreads a fixed-size subset too thinly around its circumference: take
-            # more of the draw (once) so the subset is as dense, relative to the radius, as a usual one.
-            wanted = area_per_point / (C.MAX_SPACING_PER_RADIUS * r0) ** 2 * len(pts)
-            grown = int(min(wanted, C.MAX_FIT_POINTS, len(all_pts)))
-            if grown <= len(pts):
-                break
-            pick = np.sort(draw[:grown])
-            pts = all_pts[pick]
-            given = None if all_given is None else all_given[pick]
+
+def _normals(scan: _Scan, k, *, flat_out: bool):
+    """Normals, the first radius estimate r0, the area per point and the points that may shrink.
+
+    A long, thin tube (or a scene of many) spreads a fixed-size subset too thinly around each
+    circumference: the subset then grows (once) to be as dense, relative to the radius, as a usual one.
+    With ``flat_out``, points whose surface is flatter than a tube of radius ``MAX_SHRINK_PER_RADIUS
+    r0`` (a floor, a wall, a box's face) do not shrink: they can reach no spine within the shrink
+    bound, and a floor's orientation is arbitrary -- shrinking it would drive it into the tubes above.
+    """
+    for attempt in range(2):
+        tree = cKDTree(scan.pts)
+        nrm = estimate_normals(scan.pts, k=k, tree=tree) if scan.normals is None else scan.normals
+        if scan.normals is not None and point_inward(scan.pts, nrm, tree.query(scan.pts, k=min(
+                C.ORIENT_NEIGHBOURS, len(scan.pts)))[1]):
+            log.warning("the given normals point into the tube; they are used flipped")
+            nrm = -nrm
+        kappa = principal_curvature(scan.pts, nrm, tree=tree)
+        r0 = curvature_radius(scan.pts, nrm, kappa=kappa)
+        if flat_out and np.isfinite(r0):
+            # Flat clutter (a floor, walls) pulls the median towards large radii: take it again
+            # over the points curved enough to lie on a tube.
+            r0 = curvature_radius(scan.pts, nrm, kappa=kappa[kappa * C.MAX_SHRINK_PER_RADIUS * r0 >= 1.0])
+        dist, nbr = tree.query(scan.pts, k=min(C.NORMAL_NEIGHBOURS, len(scan.pts)), workers=-1)
+        # Mean area per point is pi d_k^2 / k for the k-th neighbour distance d_k.
+        area_per_point = np.pi * np.mean(dist[:, -1] ** 2) / C.NORMAL_NEIGHBOURS
+        if scan.draw is None or attempt or not np.isfinite(r0):
+            break
+        wanted = area_per_point / (C.MAX_SPACING_PER_RADIUS * r0) ** 2 * len(scan.pts)
+        grown = int(min(wanted, C.MAX_FIT_POINTS, len(scan.all_pts)))
+        if grown <= len(scan.pts):
+            break
+        pick = np.sort(scan.draw[:grown])
+        scan = _Scan(scan.origin, scan.scale, scan.all_pts, scan.all_normals, scan.draw, scan.all_pts[pick],
+                     None if scan.all_normals is None else scan.all_normals[pick], scan.fit_pts)
     if not np.isfinite(r0) or r0 > 10:
         raise ReconstructionError("the surface is flat (no curvature around a spine) — "
                                   "the input is not a tube")
+    noise = _scan_noise(scan.pts, nbr)
+    if not flat_out:
+        return scan, nrm, r0, area_per_point, np.arange(len(scan.pts)), noise
+    curved = np.flatnonzero(kappa * C.MAX_SHRINK_PER_RADIUS * r0 >= 1.0)
+    if len(curved) < MIN_POINTS:
+        raise ReconstructionError("the surface is flat (no curvature around a spine) — "
+                                  "the input is not a tube")
+    return scan, nrm, r0, area_per_point, curved, noise
+
+
+def _scan_noise(points: np.ndarray, nbr: np.ndarray) -> float:
+    """The scan's noise: the median RMS offset of each point's neighbours from their regression plane.
+
+    Independent of any tube fitted, it is what a good fit's residual must come close to (a little
+    above on curved patches of sparse scans, whose planes cannot follow the curvature).
+    """
+    patch = points[nbr]
+    centred = patch - patch.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", centred, centred) / patch.shape[1]
+    return float(np.sqrt(max(np.median(np.linalg.eigvalsh(cov)[:, 0]), 0.0)))
+
+
+def _parameters(r0, area_per_point, scale, *, R, delta, mu, tau, H, algo, stop) -> dict:
+    """The paper's parameters in normalised units: the given ones, or the automatic defaults."""
     # Spacing of the collapsed cloud: all points on a spine of length area / (2 pi r0).
     collapsed = area_per_point / (2 * np.pi * r0)
-    algo = "pipe" if kind == "pipe" else "canal"
     p = {
         "R": R / scale if R else max(C.R_PER_RADIUS * r0, C.R_PER_COLLAPSED_SPACING * collapsed),
         "delta": delta / scale if delta else C.DELTA_PER_RADIUS * r0,
@@ -181,21 +325,32 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     }
     log.info("first radius estimate r0 = %.4g; R = %.4g, delta = %.4g, mu = %.3g, tau = %.3g, H = %.4g",
              r0 * scale, p["R"] * scale, p["delta"] * scale, p["mu"], p["tau"], p["H"] * scale)
+    return p
 
-    with timer("shrink"):
-        sr = shrink(pts, nrm, R=p["R"], delta=p["delta"], mu=p["mu"], tau=p["tau"], kind=algo, stop=stop,
-                    neighbours=neighbours, max_distance=C.MAX_SHRINK_PER_RADIUS * r0)
-        log.info("shrinking: %d moves, break count %d, stopped by %s", sr.iterations, sr.break_counts[-1],
-                 sr.stop_rule)
-        if stop == "auto" and (not sr.converged or sr.keep.sum() < C.MIN_KEPT_SHARE * len(pts)):
-            # Too few points met an opposite normal: the scan saw the tube from one side.
-            log.info("too few points met the other side of the tube (a one-sided scan?): each point "
-                     "moves by the distance at which the shifted points concentrate most")
-            sr = shrink_by_concentration(pts, nrm, R=p["R"], delta=p["delta"],
-                                         max_distance=C.MAX_SHRINK_PER_RADIUS * r0, neighbours=nbr)
-            if sr.break_counts.max() < C.MIN_CONCENTRATION * max(sr.break_counts[0], 1):
-                raise ReconstructionError("no spine: the points shifted along their normals do not "
-                                          "gather anywhere — the input is not a tube")
+
+def _reported_parameters(p, scale, *, k, r0, stop, neighbours, refine) -> dict:
+    parameters = {key: (val * scale if key in ("R", "delta", "H") else val) for key, val in p.items()}
+    parameters.update(k=int(k or C.NORMAL_NEIGHBOURS), r0=r0 * scale, stop=stop, neighbours=neighbours,
+                      refine=bool(refine))
+    return parameters
+
+
+def _shrink(pts, nrm, p, r0, *, algo, stop, neighbours):
+    """Shrinking (Algorithm 1 or 2), with the one-sided fallback; the result and the kept indices."""
+    sr = shrink(pts, nrm, R=p["R"], delta=p["delta"], mu=p["mu"], tau=p["tau"], kind=algo, stop=stop,
+                neighbours=neighbours, max_distance=C.MAX_SHRINK_PER_RADIUS * r0)
+    log.info("shrinking: %d moves, break count %d, stopped by %s", sr.iterations, sr.break_counts[-1],
+             sr.stop_rule)
+    if stop == "auto" and (not sr.converged or sr.keep.sum() < C.MIN_KEPT_SHARE * len(pts)):
+        # Too few points met an opposite normal: the scan saw the tube from one side.
+        log.info("too few points met the other side of the tube (a one-sided scan?): each point "
+                 "moves by the distance at which the shifted points concentrate most")
+        nbr = cKDTree(pts).query(pts, k=min(C.NORMAL_NEIGHBOURS, len(pts)), workers=-1)[1]
+        sr = shrink_by_concentration(pts, nrm, R=p["R"], delta=p["delta"],
+                                     max_distance=C.MAX_SHRINK_PER_RADIUS * r0, neighbours=nbr)
+        if sr.break_counts.max() < C.MIN_CONCENTRATION * max(sr.break_counts[0], 1):
+            raise ReconstructionError("no spine: the points shifted along their normals do not "
+                                      "gather anywhere — the input is not a tube")
     if not sr.converged and stop == "auto":
         raise ReconstructionError(
             f"shrinking did not stop after {sr.iterations} moves (no opposite normals met) — "
@@ -204,96 +359,305 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     if len(kept) < C.MIN_KEPT_SHARE * len(pts):
         raise ReconstructionError(f"only {len(kept)} of {len(pts)} points reached a spine — "
                                   "the input is not a tube")
+    return sr, kept
 
-    with timer("thin"):
-        thin = mls_thin(sr.points[kept], H=p["H"])
-    with timer("order"):
-        curve = order_curve(thin, spacing=C.ORDER_VOXEL_PER_H * p["H"])
-        step = np.linalg.norm(np.diff(curve.points, axis=0), axis=1)
-        s = np.concatenate([[0.0], np.cumsum(step)])
-        length = s[-1] + (np.linalg.norm(curve.points[-1] - curve.points[0]) if curve.closed else 0.0)
-        nseg = _segments(length, C.SPINE_KNOTS_PER_RADIUS * r0, len(pts))
-        spine = pspline_fit(s / length, curve.points, n_segments=nseg, closed=curve.closed,
-                            weights=curve.weights)
-    with timer("radius"):
-        r_i = np.linalg.norm(pts[kept] - thin, axis=1)
-        eq6 = pipe_radius(pts[kept], thin)
-        rseg = _segments(length, C.RADIUS_KNOTS_PER_RADIUS * r0, len(kept))
-        t_i, _ = footpoints(thin, spine, constant_spline(0.0), closed=curve.closed)
-        radius_fn = pspline_fit(t_i, r_i, n_segments=rseg, closed=curve.closed)
 
-    with timer("refine"):
-        if refine:
-            fits = {}
-            if kind in ("auto", "canal"):
-                fits["canal"] = refine_fit(fit_pts, spine, radius_fn, closed=curve.closed, spine_segments=nseg,
-                                           radius_segments=rseg, reach=r0)
-            if kind in ("auto", "pipe"):
-                start = fits["canal"].spine if "canal" in fits else spine
-                fits["pipe"] = refine_fit(fit_pts, start, constant_spline(eq6), closed=curve.closed,
-                                          spine_segments=nseg, radius_segments=None, reach=r0)
-            if kind == "auto":
-                # Both fits scored on all points with the same outlier cut: a fit that went wrong
-                # must not look good by calling most points outliers.
-                cut = outlier_cut(fits["canal"].residual, r0)
-                rss = {name: float(np.minimum(f.residual**2, cut**2).sum()) for name, f in fits.items()}
-                samples = fits["canal"].radius(np.linspace(0, 1, 200))
-                kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(fit_pts), rseg + 2,
-                                               samples) else "pipe"
-            fit = fits[kind]
-            spine, radius_fn, fit_t, residual = fit.spine, fit.radius, fit.t, fit.residual
-        else:
-            if kind == "auto":
-                rss_pipe = float(((r_i - eq6) ** 2).sum())
-                rss_canal = float(((r_i - radius_fn(t_i)) ** 2).sum())
-                kind = "canal" if prefer_canal(rss_pipe, rss_canal, len(r_i), rseg + 2,
-                                               radius_fn(np.linspace(0, 1, 200))) else "pipe"
-            if kind == "pipe":
-                radius_fn = constant_spline(eq6)
-            fit_t, residual = footpoints(fit_pts, spine, radius_fn, closed=curve.closed)
+def _thin(shrunk, H):
+    from .thin import mls_thin
 
-    # How much of the circumference the scan saw (full scans read about 340 degrees or more).
-    near = ~is_stray(residual, r0)
-    coverage = angular_coverage(fit_pts[near], spine, fit_t[near])
-    coverage = float(np.median(coverage)) if len(coverage) else float("nan")
+    return mls_thin(shrunk, H=H)
 
-    with timer("residual"):
-        if len(all_pts) > len(fit_pts):
-            # The RMS residual is a diagnostic, not a fit: a seeded sample estimates it far below its
-            # own spread, so a huge scan is not walked point by point for it.
-            measured = all_pts if draw is None else all_pts[np.sort(draw[: C.MAX_RESIDUAL_POINTS])]
-            residual = footpoints(measured, spine, radius_fn, closed=curve.closed)[1]
-    rms = float(np.sqrt(np.mean(residual**2)))
-    # Whether the points form a tube is judged on the points near the surface: stray points (a few
-    # percent in real scans) are far off by nature and must not make a good tube look like none.
-    sigma = robust_sigma(residual)
-    stray = is_stray(residual, r0)
-    inlier_rms = float(np.sqrt(np.mean(residual[~stray] ** 2))) if (~stray).any() else np.inf
-    mean_r = float(np.mean(radius_fn(np.linspace(0, 1, 200))))
-    if not mean_r > 0 or inlier_rms > MAX_RELATIVE_RESIDUAL * mean_r:
-        raise ReconstructionError(
-            f"the points do not lie on a tube: RMS distance from the best tube is "
-            f"{inlier_rms / max(mean_r, 1e-300):.0%} of its radius — check the input is a single pipe or canal")
-    if stray.mean() > C.MAX_STRAY_SHARE:
-        raise ReconstructionError(
-            f"{stray.mean():.0%} of the points lie far off the best tube — the input is not a single "
-            "pipe or canal; crop it to one tube")
 
-    # Back to the input's units and placement.
-    spine = BSpline(spine.t, spine.c * scale + origin, spine.k)
-    radius_fn = BSpline(radius_fn.t, radius_fn.c * scale, radius_fn.k)
-    parameters = {key: (val * scale if key in ("R", "delta", "H") else val) for key, val in p.items()}
-    parameters.update(k=int(k or C.NORMAL_NEIGHBOURS), r0=r0 * scale, stop=stop, neighbours=neighbours,
-                      refine=bool(refine), spine_segments=nseg, radius_segments=rseg)
-    diagnostics = {
-        "n_points": len(all_pts), "n_shrink_points": len(pts), "n_fit_points": len(fit_pts),
-        "n_residual_points": len(residual),
-        "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]),
-        "stop_rule": sr.stop_rule, "points_reached_spine": int(len(kept)), "closed": bool(curve.closed),
-        "eq6_radius": eq6 * scale, "rms_residual": rms * scale, "inlier_rms_residual": inlier_rms * scale,
-        "stray_share": float(stray.mean()), "noise_sigma": sigma * scale, "angular_coverage": coverage,
-        "one_sided": bool(coverage < C.ONE_SIDED_DEGREES), "seconds": dict(timer),
+# --------------------------------------------------------------------------------------------------
+# fit each branch
+
+
+def _first_guess(branch: SkeletonBranch) -> dict:
+    """Spline through a skeleton branch by arc length, its radius function and Eq. (6) radius."""
+    steps = np.linalg.norm(np.diff(branch.points, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    length = s[-1] + (np.linalg.norm(branch.points[-1] - branch.points[0]) if branch.closed else 0.0)
+    w = branch.weights
+    n_thin = int(w.sum())
+    r_b = float(np.average(branch.radius, weights=w))  # Eq. (6) over the branch's points
+    # A loop's periodic splines need more segments than their degree.
+    least = 4 if branch.closed else 1
+    nseg = max(least, _segments(length, C.SPINE_KNOTS_PER_RADIUS * r_b, n_thin))
+    rseg = max(least, _segments(length, C.RADIUS_KNOTS_PER_RADIUS * r_b, n_thin))
+    u = s / length
+    spine = pspline_fit(u, branch.points, n_segments=nseg, closed=branch.closed, weights=w)
+    radius = pspline_fit(u, branch.radius, n_segments=rseg, closed=branch.closed, weights=w)
+    return {"spine": spine, "radius": radius, "eq6": r_b, "segments": (nseg, rseg), "closed": branch.closed,
+            "u": u, "r_v": branch.radius, "w": w}
+
+
+def _assign(points: np.ndarray, guesses: list, junctions: np.ndarray, skel: Skeleton) -> list:
+    """Indices of the points each branch is fitted to.
+
+    Each point goes to the branch whose first tube estimate -- continued straight for
+    ``ASSIGN_END_RADII`` radii past its open ends, which the thin set may fall short of -- it lies
+    nearest, if within ``ASSIGN_RADII`` of that branch's radii; points near a junction go to none
+    (their surface belongs to several tubes).  Clutter (a floor under a pipe, a box beside it) is
+    then no part of any fit, however much of the scan it is.
+    """
+    stand_in = []
+    for i, (g, branch) in enumerate(zip(guesses, skel.branches)):
+        spine, radius = g["spine"], g["radius"]
+        if not g["closed"]:
+            ext = ASSIGN_END_RADII * g["eq6"] / curve_length(spine)
+            a, b = (0.0 if branch.ends[0] is not None else -ext), (1.0 if branch.ends[1] is not None else 1 + ext)
+            nseg, rseg = g["segments"]
+            spine, (radius,), _ = arclength_reparametrize(extended(spine), n_segments=nseg + 2, closed=False,
+                                                          a=a, b=b, extra=[(extended(radius), rseg + 2)])
+        stand_in.append(CanalModel("canal", spine, radius, g["closed"], id=i))
+    label, _ = classify_points(points, stand_in, cut=[ASSIGN_RADII * g["eq6"] for g in guesses])
+    near_junction = np.zeros(len(points), bool)
+    for j, point in enumerate(junctions):
+        largest = max(g["eq6"] for g, b in zip(guesses, skel.branches) if j in b.ends)
+        near_junction |= np.linalg.norm(points - point, axis=1) < JUNCTION_EXCLUSION_RADII * largest
+    return [np.flatnonzero((label == i) & ~near_junction) for i in range(len(guesses))]
+
+
+def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> _BranchFit:
+    """Spine and radius of one branch: the refined fit to its points, or the paper's own result."""
+    spine, radius_fn, eq6 = guess["spine"], guess["radius"], guess["eq6"]
+    closed, (nseg, rseg) = guess["closed"], guess["segments"]
+    if refine:
+        fits = {}
+        if kind in ("auto", "canal"):
+            fits["canal"] = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
+                                       radius_segments=rseg, reach=eq6)
+        if kind in ("auto", "pipe"):
+            start = fits["canal"].spine if "canal" in fits else spine
+            fits["pipe"] = refine_fit(points, start, constant_spline(eq6), closed=closed,
+                                      spine_segments=nseg, radius_segments=None, reach=eq6)
+        if kind == "auto":
+            # Both fits scored on all points with the same outlier cut: a fit that went wrong
+            # must not look good by calling most points outliers.
+            cut = outlier_cut(fits["canal"].residual, eq6)
+            rss = {name: float(np.minimum(f.residual**2, cut**2).sum()) for name, f in fits.items()}
+            samples = fits["canal"].radius(np.linspace(0, 1, 200))
+            kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(points), rseg + 2, samples) else "pipe"
+        fit = fits[kind]
+        return _BranchFit(kind, fit.spine, fit.radius, closed, (None, None), eq6, eq6, (nseg, rseg),
+                          fit.residual, fit.t, points)
+    if kind == "auto":
+        w, r_v, u = guess["w"], guess["r_v"], guess["u"]
+        rss_pipe = float((w * (r_v - eq6) ** 2).sum())
+        rss_canal = float((w * (r_v - radius_fn(u)) ** 2).sum())
+        kind = "canal" if prefer_canal(rss_pipe, rss_canal, int(w.sum()), rseg + 2,
+                                       radius_fn(np.linspace(0, 1, 200))) else "pipe"
+    if kind == "pipe":
+        radius_fn = constant_spline(eq6)
+    t, residual = footpoints(points, spine, radius_fn, closed=closed)
+    return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, eq6, (nseg, rseg), residual, t, points)
+
+
+def _quality(fit: _BranchFit) -> dict:
+    """Inlier RMS distance, mean radius and out-of-roundness of a fitted branch (normalised units)."""
+    stray = is_stray(fit.residual, fit.reach)
+    mean_r = float(np.mean(fit.radius(np.linspace(0, 1, 200))))
+    inlier_rms = float(np.sqrt(np.mean(fit.residual[~stray] ** 2))) if (~stray).any() else np.inf
+    out_of_round = roundness(fit.points[~stray], fit.spine, fit.t[~stray], fit.residual[~stray])
+    return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum())}
+
+
+def _is_tube(q: dict, noise: float) -> tuple[bool, str]:
+    """Whether a fitted branch is a tube: its points near the surface lie close to it, all round,
+    and no farther than the scan's own ``noise`` explains."""
+    if q["n"] < MIN_CHECKED_POINTS:
+        return False, f"only {q['n']} points lie on the best tube, too few to tell it is one"
+    if not q["radius"] > 0 or q["rms"] > MAX_RELATIVE_RESIDUAL * q["radius"]:
+        return False, (f"the points do not lie on a tube: RMS distance from the best tube is "
+                       f"{q['rms'] / max(q['radius'], 1e-300):.0%} of its radius")
+    if q["round"] > MAX_OUT_OF_ROUND * q["radius"]:
+        return False, (f"the points are not round about the spine: whole sectors lie "
+                       f"{q['round'] / q['radius']:.0%} of the radius off the best tube")
+    if q["rms"] > SCAN_NOISE_RATIO * noise and q["rms"] > TUBE_RELATIVE_RESIDUAL * q["radius"]:
+        return False, (f"the points misfit the best tube by {q['rms'] / q['radius']:.0%} of its radius, "
+                       f"{q['rms'] / noise:.0f} times the scan's own noise")
+    return True, ""
+
+
+def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float):
+    """Fit every branch; drop those that are no tube and join the branches they separated.
+
+    ``noise`` is the scan's own noise (:func:`_scan_noise`), against which a branch's misfit is judged.
+    """
+    fits = [None] * len(skel.branches)
+    for _ in range(MAX_FIT_ROUNDS):
+        guesses = [_first_guess(b) for b in skel.branches]
+        parts = _assign(points, guesses, skel.junctions, skel)
+        reason = ""
+        for i, (guess, idx) in enumerate(zip(guesses, parts)):
+            if fits[i] is None:
+                if len(idx) < C.POINTS_PER_SEGMENT:
+                    fits[i] = False
+                    continue
+                try:
+                    fits[i] = _fit_branch(points[idx], guess, kind=kind, refine=refine)
+                except ReconstructionError as exc:
+                    if len(skel.branches) == 1:
+                        raise
+                    reason, fits[i] = str(exc).split(" — ")[0], False
+                    continue
+        for i, fit in enumerate(fits):
+            if fit:
+                ok, why = _is_tube(_quality(fit), noise)
+                if not ok:
+                    reason, fits[i] = why, False
+        drop = [i for i, f in enumerate(fits) if f is False]
+        if not drop:
+            break
+        if len(drop) == len(fits):
+            raise ReconstructionError(f"no part of the cloud is a tube ({reason or 'no branch could be fitted'})"
+                                      " — check the input is a scan of pipes or canals")
+        log.info("%d of %d branches are no tube (left out): %s", len(drop), len(fits), reason)
+        skel, origin = without_branches(skel, drop)
+        fits = [None if o is None else fits[o] for o in origin]
+    else:
+        if any(f is None or f is False for f in fits):
+            raise ReconstructionError("the branches of the network could not be fitted — the input is not a tube")
+    for fit, branch in zip(fits, skel.branches):
+        fit.ends = branch.ends
+    return skel, fits
+
+
+# --------------------------------------------------------------------------------------------------
+# junctions
+
+
+def _end_frame(spine: BSpline, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """Point and unit tangent pointing out of the branch at ``end`` (0: t = 0, 1: t = 1)."""
+    d = spine.derivative()(float(end))
+    d = d / np.linalg.norm(d)
+    return spine(float(end)), (d if end == 1 else -d)
+
+
+def _junction_point(fits: list, ends: list, guess: np.ndarray) -> np.ndarray:
+    """The point nearest to the lines continuing the branch ends (least squares), near ``guess``.
+
+    A T's two halves of the main pipe fix the point on their common axis, the side branch fixes it
+    along that axis; a light pull towards the skeleton's junction keeps it determined when lines are
+    parallel.  Too far from the skeleton's junction (a bad tangent), the skeleton's is kept.
+    """
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    largest = max(fits[i].eq6 for i, _ in ends)
+    for i, e in ends:
+        p, d = _end_frame(fits[i].spine, e)
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ p
+    pull = 1e-3 * len(ends)
+    point = np.linalg.solve(A + pull * np.eye(3), b + pull * guess)
+    return point if np.linalg.norm(point - guess) <= 2 * largest else guess
+
+
+def _continue_to(fit: _BranchFit, end: int, target: np.ndarray) -> None:
+    """Continue the branch's spine from ``end`` smoothly to ``target`` (a Hermite arc), in place."""
+    spine, radius = fit.spine, fit.radius
+    length = curve_length(spine)
+    p, d = _end_frame(spine, end)
+    gap = float(np.linalg.norm(target - p))
+    if gap <= 1e-9 * length:
+        return
+    nseg = len(spine.t) - 2 * spine.k - 1
+    n = max(40 * nseg, 2001)
+    t = np.linspace(0.0, 1.0, n)
+    pts, r = spine(t), radius(t)
+    u = np.linspace(0.0, 1.0, max(20, int(n * gap / length)))[1:, None]
+    h00, h10, h01, h11 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2, u**3 - u**2
+    arc = h00 * p + h10 * gap * d + h01 * target + h11 * gap * d
+    # A canal's radius goes on changing at its rate at the end (per unit of length along the arc).
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(np.vstack([p, arc]), axis=0), axis=1))])[1:]
+    rate = float(radius.derivative()(float(end))) / length * (1.0 if end == 1 else -1.0)
+    r_arc = float(radius(float(end))) + rate * along
+    if end == 1:
+        pts, r = np.vstack([pts, arc]), np.r_[r, r_arc]
+    else:
+        pts, r = np.vstack([arc[::-1], pts]), np.r_[r_arc[::-1], r]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s /= s[-1]
+    grow = 1.0 + gap / length
+    fit.spine = pspline_fit(s, pts, n_segments=math.ceil(nseg * grow), smoothing=1e-9)
+    if fit.kind == "canal":
+        rseg = len(radius.t) - 2 * radius.k - 1
+        fit.radius = pspline_fit(s, r, n_segments=math.ceil(rseg * grow), smoothing=1e-9)
+
+
+def _join_at_junctions(fits: list, skel: Skeleton):
+    """Place each junction and continue the spines of the branches that meet there to it."""
+    meeting = {}
+    for i, fit in enumerate(fits):
+        for e, j in enumerate(fit.ends):
+            if j is not None:
+                meeting.setdefault(j, []).append((i, e))
+    points = np.empty((len(skel.junctions), 3))
+    for j, ends in sorted(meeting.items()):
+        points[j] = _junction_point(fits, ends, skel.junctions[j])
+    for j, ends in sorted(meeting.items()):
+        for i, e in ends:
+            _continue_to(fits[i], e, points[j])
+    # The refits leave each end within a small fraction of a radius of its junction; a clamped
+    # spline ends at its end control point, so that point is the junction.
+    for j, ends in meeting.items():
+        for i, e in ends:
+            fits[i].spine.c[-1 if e == 1 else 0] = points[j]
+    return fits, points
+
+
+# --------------------------------------------------------------------------------------------------
+# checks and the result
+
+
+def _check_and_describe(scan: _Scan, fits: list):
+    """Per-branch diagnostics and the scan's: which points lie on a tube, how well, how seen."""
+    branches = []
+    for i, fit in enumerate(fits):
+        t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
+        stray = is_stray(residual, fit.reach)
+        near = ~stray
+        coverage = angular_coverage(fit.points[near], fit.spine, t[near])
+        coverage = float(np.median(coverage)) if len(coverage) else float("nan")
+        sigma = robust_sigma(residual)
+        branches.append(CanalModel(fit.kind, fit.spine, fit.radius, fit.closed, diagnostics={
+            "n_points": int(len(fit.points)), "eq6_radius": fit.eq6,
+            "inlier_rms_residual": float(np.sqrt(np.mean(residual[near] ** 2))) if near.any() else None,
+            "noise_sigma": sigma, "stray_share": float(stray.mean()), "angular_coverage": coverage,
+            "one_sided": bool(coverage < C.ONE_SIDED_DEGREES),
+            "spine_segments": fit.segments[0], "radius_segments": fit.segments[1]}, id=i, ends=fit.ends))
+    # The scan as a whole, on a seeded sample of at most MAX_RESIDUAL_POINTS points.
+    measured = scan.all_pts if scan.draw is None else scan.all_pts[np.sort(scan.draw[: C.MAX_RESIDUAL_POINTS])]
+    label, distance = classify_points(measured, branches)
+    on = label >= 0
+    coverage = [b.diagnostics["angular_coverage"] for b in branches]
+    summary = {
+        "n_residual_points": int(len(measured)),
+        "no_tube_share": float(1.0 - on.mean()),
+        "rms_residual": float(np.sqrt(np.mean(np.minimum(distance, 1e300) ** 2))),
+        "inlier_rms_residual": float(np.sqrt(np.mean(distance[on] ** 2))) if on.any() else None,
+        "noise_sigma": robust_sigma(distance[on]) if on.any() else None,
+        "angular_coverage": float(np.nanmedian(coverage)) if np.isfinite(coverage).any() else float("nan"),
     }
-    stages = {"normals": nrm, "shrunk": sr.points[kept] * scale + origin, "thin": thin * scale + origin,
-              "break_counts": sr.break_counts}
-    return CanalModel(kind, spine, radius_fn, bool(curve.closed), parameters, diagnostics, stages)
+    summary["one_sided"] = bool(summary["angular_coverage"] < C.ONE_SIDED_DEGREES)
+    return branches, summary
+
+
+def _to_input_units(branches: list, junction_points: np.ndarray, fits: list, scan: _Scan) -> Network:
+    """Map the branches and junctions back to the input's units and placement."""
+    s, o = scan.scale, scan.origin
+    out = []
+    for b in branches:
+        d = dict(b.diagnostics)
+        for key in ("eq6_radius", "inlier_rms_residual", "noise_sigma"):
+            if d.get(key) is not None:
+                d[key] = d[key] * s
+        out.append(CanalModel(b.kind, BSpline(b.spine.t, b.spine.c * s + o, b.spine.k),
+                              BSpline(b.radius.t, b.radius.c * s, b.radius.k), b.closed, diagnostics=d,
+                              id=b.id, ends=b.ends))
+    junctions = []
+    for j, point in enumerate(junction_points):
+        ends = [(b.id, e) for b in out for e, jj in enumerate(b.ends) if jj == j]
+        junctions.append(Junction(j, point * s + o, ends))
+    return Network(out, junctions)

@@ -17,12 +17,14 @@ from scipy.spatial import cKDTree
 
 from .constants import CANAL_MIN_VARIATION
 
-__all__ = ["curvature_radius", "pipe_radius", "prefer_canal"]
+__all__ = ["principal_curvature", "curvature_radius", "pipe_radius", "prefer_canal"]
 
 
-def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
-                     tree: cKDTree | None = None) -> float:
-    """Median of ``1 / kappa_max`` over the points: a first estimate of the tube radius.
+def principal_curvature(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
+                        tree: cKDTree | None = None) -> np.ndarray:
+    """The larger principal curvature ``kappa_max`` of the normal field at each point.
+
+    On a tube it is the curvature around the tube, ``1 / r``; on a plane it is about 0 (the noise's).
 
     Parameters
     ----------
@@ -34,7 +36,7 @@ def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
 
     Returns
     -------
-    float
+    ndarray, shape (N,)
     """
     tree = cKDTree(points) if tree is None else tree
     _, idx = tree.query(points, k=min(k, len(points)), workers=-1)
@@ -53,7 +55,29 @@ def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
     atb = np.einsum("nki,nkj->nij", a, b)
     W = np.linalg.solve(ata, atb)
     W = 0.5 * (W + np.swapaxes(W, 1, 2))
-    kappa = np.linalg.eigvalsh(W)[:, -1]
+    return np.linalg.eigvalsh(W)[:, -1]
+
+
+def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
+                     tree: cKDTree | None = None, kappa: np.ndarray | None = None) -> float:
+    """Median of ``1 / kappa_max`` over the points: a first estimate of the tube radius.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+        Points and consistently oriented unit normals.
+    k : int
+        Neighbourhood size of the curvature fit.
+    tree : cKDTree, optional
+    kappa : ndarray, shape (N,), optional
+        :func:`principal_curvature` of the points, if already known.
+
+    Returns
+    -------
+    float
+    """
+    if kappa is None:
+        kappa = principal_curvature(points, normals, k=k, tree=tree)
     kappa = kappa[np.isfinite(kappa) & (kappa > 0)]
     if len(kappa) == 0:
         return float("inf")

@@ -28,7 +28,7 @@ from .errors import ReconstructionError
 from .spine import (arclength_reparametrize, constant_spline, curve_length, local_basis, n_coefficients,
                     penalty)
 
-__all__ = ["footpoints", "refine", "RefineResult", "robust_sigma", "outlier_cut", "is_stray"]
+__all__ = ["footpoints", "refine", "RefineResult", "robust_sigma", "outlier_cut", "is_stray", "extended"]
 
 #: Most Newton steps of the footpoint search, and the parameter change that counts as converged:
 #: Newton converges quadratically, so after a step this small the parameter is exact to ~1e-12.
@@ -57,6 +57,10 @@ CYCLE_PASSES = 8
 #: ends to within the noise, so that the passes on all points only polish.
 SUBSET_POINTS = 5_000
 SUBSET_FACTOR = 2
+#: Ridge on every coefficient of a Gauss-Newton step, and stiffness against moving a control point
+#: along the spine, relative to the mean diagonal of J^T J on the spine's coefficients.
+RIDGE = 1e-8
+TANGENT_STIFFNESS = 0.01
 #: Levenberg-Marquardt damping factors tried in turn until the cost falls.
 LM_DAMPING = (1e-3, 1e-1, 1.0, 10.0, 100.0)
 #: Clouds at least this large query their KD-trees on all cores.
@@ -247,7 +251,7 @@ class RefineResult:
     iterations: int
 
 
-def _extended(f: BSpline):
+def extended(f: BSpline):
     """``f`` continued beyond [0, 1] by its tangent line.
 
     A cubic's own end polynomial curls away when extrapolated; a tube that goes on past the current
@@ -366,8 +370,8 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             segs = int(np.ceil(spine_segments * (1 + 2 * ext)))
             rsegs = None if rsegs is None else int(np.ceil(radius_segments * (1 + 2 * ext)))
             spine, extra, to_new = arclength_reparametrize(
-                _extended(spine), n_segments=segs, closed=False, a=-ext, b=1 + ext,
-                extra=[] if rsegs is None else [(_extended(radius), rsegs)])
+                extended(spine), n_segments=segs, closed=False, a=-ext, b=1 + ext,
+                extra=[] if rsegs is None else [(extended(radius), rsegs)])
         if rsegs is not None:
             radius = extra[0]
         start = to_new(t) if follow and t is not None else None
@@ -378,14 +382,18 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             # Levenberg-Marquardt: accept a step only if the truncated cost (outliers count as
             # ``cut``) falls with re-computed footpoints; otherwise damp harder.  A step moves the
             # spine little, so the footpoints are followed from where they were.
-            cost = np.minimum(res**2, cut**2).sum()
+            # The truncation bound reaches past the residuals' own offset: a start radius a few
+            # per cent off puts every residual near the cut, and a wild step that makes them all
+            # outliers would cost little more than a good one.
+            bound = cut + abs(float(np.median(res)))
+            cost = np.minimum(res**2, bound**2).sum()
             gain = 0.0
             system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
             lam = _gcv_smoothing(*system, floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
             for damping in LM_DAMPING:
                 new_spine, new_radius = _step(system, spine, radius, segs, rsegs, closed, lam, damping)
                 new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed, start=t)
-                new_cost = np.minimum(new_res**2, cut**2).sum()
+                new_cost = np.minimum(new_res**2, bound**2).sum()
                 if new_cost < cost:
                     spine, radius, t, res = new_spine, new_radius, new_t, new_res
                     gain = 1.0 - new_cost / cost
@@ -514,11 +522,34 @@ def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float) -> float:
     return float(best_lam)
 
 
+def _tangential(spine: BSpline, m: int, closed: bool, size: int) -> np.ndarray:
+    """``t t^T`` on the (x, y, z) coefficients of each control point, ``t`` the spine's unit tangent at
+    the control point's Greville abscissa; zero elsewhere (the radius block)."""
+    k = spine.k
+    greville = np.array([spine.t[j + 1:j + k + 1].mean() for j in range(m)])
+    greville = np.mod(greville, 1.0) if closed else np.clip(greville, 0.0, 1.0)
+    tangent = spine.derivative()(greville)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    K = np.zeros((size, size))
+    j = np.arange(m)
+    for a in range(3):
+        for b in range(3):
+            K[a * m + j, b * m + j] = tangent[:, a] * tangent[:, b]
+    return K
+
+
 def _step(system, spine, radius, segs, rsegs, closed, lam, damping):
     """One damped Gauss-Newton step with penalty weight ``lam``; returns the new spine and radius."""
     JtWJ, g, Pen, x, _, _ = system
     m = n_coefficients(segs, closed)
-    A = JtWJ + lam * Pen + damping * np.diag(JtWJ.diagonal() + 1e-12)
+    # Sliding control points along the spine changes (almost) no distance -- it only re-parameterises
+    # the curve, which each pass does anyway -- and the second-difference penalty does not hold a
+    # straight stretch's shift or stretch along itself: such steps are stiffened, or rounding moves
+    # the spine along itself by radii and the step fails.
+    diag = JtWJ.diagonal()
+    scale = max(float(diag[: 3 * m].mean()), 1e-300)
+    A = JtWJ + lam * Pen + damping * np.diag(diag) + RIDGE * scale * np.eye(len(diag))
+    A += TANGENT_STIFFNESS * scale * _tangential(spine, m, closed, len(diag))
     x_new = x + np.linalg.solve(A, -g - lam * (Pen @ x))
     ctrl = x_new[: 3 * m].reshape(3, m).T
     if closed:

@@ -34,11 +34,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .constants import MAX_SHRINK_PER_RADIUS, PATIENCE, PEAK_DROP, PEAK_MIN_SHARE
+from .errors import InputError
 
 __all__ = ["ShrinkResult", "shrink", "shrink_by_concentration", "break_mask"]
 
 #: Latitude x longitude cells of the paper's Gauss-map grouping (the paper leaves a, b open).
 GAUSS_CELLS = (6, 12)
+#: Most moves of ``delta`` a shrink may take to cover ``max_distance``.  Every move is a neighbour
+#: search over all points, so the time grows as 1 / delta: the default (max_distance = 4 r0,
+#: delta = r0 / 20) takes 80 moves, and 2,000 -- a step 25 times finer -- already takes minutes on a
+#: large scan, while a finer step no longer locates the spine better than the thinning does.
+MAX_MOVES = 2_000
 
 
 @dataclass
@@ -146,6 +152,28 @@ def break_mask(points: np.ndarray, normals: np.ndarray, R: float, tau: float = 0
     return mask
 
 
+def _move_count(max_distance: float, delta: float, R: float) -> int:
+    """Moves of ``delta`` that cover ``max_distance``, or :class:`InputError` if the numbers cannot work."""
+    tiny = np.finfo(np.float64).tiny
+    for name, value in (("delta", delta), ("R", R), ("max_distance", max_distance)):
+        try:
+            v = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(f"{name} must be a positive number, got {value!r}") from None
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"{name} must be a positive finite number, got {v!r} (relative to the scan's "
+                             f"size) — give a {name} of the order of the tube's radius")
+        if v < tiny:
+            raise InputError(f"{name} = {v:.3g} (relative to the scan's size) is too small for float64 "
+                             f"arithmetic — give a larger {name}")
+    ratio = float(max_distance) / float(delta)
+    if not ratio <= MAX_MOVES:
+        raise InputError(f"delta is {ratio:.3g} times smaller than the shrink distance, so shrinking could take "
+                         f"{ratio:.3g} moves (at most {MAX_MOVES:,}) — give a larger delta (the default, "
+                         "r0 / 20, takes 80)")
+    return int(np.ceil(ratio))
+
+
 def shrink(points: np.ndarray, normals: np.ndarray, *, R: float, delta: float, mu: float,
            tau: float = 0.0, kind: str = "pipe", stop: str = "auto", neighbours: str = "kdtree",
            max_distance: float, callback=None) -> ShrinkResult:
@@ -170,17 +198,24 @@ def shrink(points: np.ndarray, normals: np.ndarray, *, R: float, delta: float, m
         ``"paper"``: only the printed ``mu`` rule; ``"auto"``: also the peak / patience rules.
     neighbours : {"kdtree", "gauss"}
     max_distance : float
-        No point moves farther than this (bounds the iterations when no rule fires).
+        No point moves farther than this (bounds the iterations when no rule fires).  At most
+        ``MAX_MOVES`` = 2,000 moves of ``delta`` may cover it.
     callback : callable, optional
         Called as ``callback(moves, break_count)`` after each check.
 
     Returns
     -------
     ShrinkResult
+
+    Raises
+    ------
+    InputError
+        ``delta``, ``R`` or ``max_distance`` not a positive float64 of normal size, or
+        ``max_distance / delta`` above ``MAX_MOVES``.
     """
     n = len(points)
+    max_moves = _move_count(max_distance, delta, R)
     cells = _gauss_cells(normals) if neighbours == "gauss" else None
-    max_moves = int(np.ceil(max_distance / delta))
     target = mu * n
     counts: list[int] = []
 
@@ -252,7 +287,7 @@ def shrink_by_concentration(points: np.ndarray, normals: np.ndarray, *, R: float
     delta : float
         Step of the distances tried.
     max_distance : float
-        Largest distance tried.
+        Largest distance tried; at most ``MAX_MOVES`` = 2,000 steps of ``delta``.
     neighbours : ndarray of int, shape (N, k)
         Each point's nearest neighbours on the surface (the first column may be the point itself).
 
@@ -260,8 +295,13 @@ def shrink_by_concentration(points: np.ndarray, normals: np.ndarray, *, R: float
     -------
     ShrinkResult
         ``break_counts`` holds the total count after each move; every point is kept.
+
+    Raises
+    ------
+    InputError
+        As :func:`shrink`, for ``delta``, ``R`` and ``max_distance``.
     """
-    moves = int(np.ceil(max_distance / delta))
+    moves = _move_count(max_distance, delta, R)
     counts = np.empty((moves + 1, len(points)))
     for m in range(moves + 1):
         shifted = points - (m * delta) * normals

@@ -46,6 +46,10 @@ ARC_NEWTON_STEPS = 3
 MIN_RELATIVE_SPEED = 1e-9
 #: A closed spine's ends (and radii) may differ by this fraction of the spine length (rounding in a fit).
 CLOSED_GAP_TOL = 1e-6
+#: Most vertices a mesh may have.  Building one takes about 200 bytes per vertex at its peak (float64
+#: coordinates, frames and normals per ring and angle, two int64 triangles), so 50 million is ~10 GB,
+#: the most a workstation can hold; the default rule gives at most MAX_RINGS x 32 = 64,000.
+MAX_MESH_VERTICES = 50_000_000
 
 
 def surface_mesh(spine: BSpline, radius: BSpline, *, closed: bool = False, caps: bool = True,
@@ -71,7 +75,8 @@ def surface_mesh(spine: BSpline, radius: BSpline, *, closed: bool = False, caps:
         holds a fraction ``n sin(2 pi / n) / (2 pi)`` of the circle's area (99.4 % for 32, 99.8 %
         for 64); raise it for smoother renders or volume estimates.
     n_along : int, optional
-        Number of rings (>= 2 open, >= 3 closed), placed evenly in arc length.  Default: the spine
+        Number of rings (>= 2 open, >= 3 closed), placed evenly in arc length.  ``n_around * n_along``
+        may not exceed ``MAX_MESH_VERTICES`` = 50 million.  Default: the spine
         length divided by ``ALONG_SPACING_FRACTION * min(r / (1 + r kappa))`` over the spine
         (kappa the curvature), rounded up, clipped to [``MIN_RINGS``, ``MAX_RINGS``] = [16, 2000]:
         rings about half a radius apart, closer on tight bends so that the outer side of the tube
@@ -89,8 +94,9 @@ def surface_mesh(spine: BSpline, radius: BSpline, *, closed: bool = False, caps:
     Raises
     ------
     InputError
-        Bad sizes, a spine that is not 3-D or stops (C' = 0), a radius that is not positive, a
-        closed spine whose ends do not meet, or |dr/ds| >= 1 (no envelope).
+        Bad sizes (or more than ``MAX_MESH_VERTICES`` vertices), a spine that is not 3-D or stops
+        (C' = 0), a radius that is not positive, a closed spine whose ends do not meet, or
+        |dr/ds| >= 1 (no envelope).
 
     Notes
     -----
@@ -108,6 +114,8 @@ def surface_mesh(spine: BSpline, radius: BSpline, *, closed: bool = False, caps:
     n_around = _count(DEFAULT_N_AROUND if n_around is None else n_around, "n_around", 3)
     if n_along is not None:
         n_along = _count(n_along, "n_along", 3 if closed else 2)
+    # Checked before anything is allocated, with the fewest rings the default rule can give.
+    _check_size(n_around, MIN_RINGS if n_along is None else n_along)
     _check_spline(spine, "spine", ((3,),))
     _check_spline(radius, "radius", ((), (1,)))
     grid, arc, speed_grid = _arc_length_table(spine)
@@ -116,6 +124,7 @@ def surface_mesh(spine: BSpline, radius: BSpline, *, closed: bool = False, caps:
 
     if n_along is None:
         n_along = _default_rings(spine, radius, grid, closed, length)
+        _check_size(n_around, n_along)
     # A closed loop also gets the ring at s = L (= the first ring) to measure the frame's leftover twist.
     n_steps = n_along if closed else n_along - 1
     s_target = np.linspace(0.0, length, n_steps + 1)
@@ -160,6 +169,14 @@ def _count(value, name: str, minimum: int) -> int:
     if n < minimum:
         raise InputError(f"{name} must be an integer >= {minimum}, got {n}")
     return n
+
+
+def _check_size(n_around: int, n_along: int) -> None:
+    """Raise :class:`InputError` if the mesh would have more than ``MAX_MESH_VERTICES`` vertices."""
+    if n_around * n_along > MAX_MESH_VERTICES:
+        raise InputError(f"a mesh of {n_along:,} rings of {n_around:,} vertices would have "
+                         f"{n_around * n_along:.3g} vertices, more than the {MAX_MESH_VERTICES:,} that fit in "
+                         "memory — give a smaller n_along or n_around")
 
 
 def _scalar(spline: BSpline, t: np.ndarray) -> np.ndarray:

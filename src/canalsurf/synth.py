@@ -26,20 +26,40 @@ Further shapes, for the conditions of real scans: ``helix`` (a pipe around a hel
 Real-scan conditions are options of :func:`make_tube`: Gaussian instead of uniform noise, stray points
 in the bounding box (``outliers``), density falling along the spine (``density_ratio``) and one-sided
 scans (``arc``: only the part of each cross-section that faces one viewing direction).
+
+Networks of tubes (:func:`make_network`, :data:`NETWORKS`) return a :class:`SyntheticNetwork`: the points
+on the surface of the union of several tubes, each labelled with its branch (or -1 on clutter), and
+the branches (spine, radius, the junctions at their ends).  A branch ends at a junction: a T is three
+branches (the main pipe split at the junction, and the side pipe, whose spine starts on the main axis).
+Noise there is relative to the local radius.  Layouts (branch indices in order):
+
+``y-vessel``       0 parent canal ending at junction 0; 1, 2 daughters starting there (25 and 50 degrees).
+``t-junction``     0, 1 the main pipe's halves (0 ends, 1 starts at junction 0); 2 the side pipe.
+``tree``           0 - 3 the stem's pieces from the foot up, split at junctions 0, 1, 2 (heights 5, 10,
+                   15); 4, 5, 6 the side branches from junctions 0, 1, 2.
+``rack``           0 - 3 parallel pipes (radii 1, 1.5, 0.8, 2), no junctions.
+``crossing``       0 along x, 1 along y above it, no junctions.
+``floor-clutter``  0 the pipe; a floor and a box as clutter.
+``scene``          0 - 2 a T (junction 0), 3 - 5 a rack, 6, 7 a crossing pair; a box and a floor.
+``plant``          per bay (``size`` of them): 15 rack pipes, 2 elbow runs, 2 T's (3 branches each); a box;
+                   one floor.
 """
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
+from scipy.spatial import cKDTree
 
 from ._validate import choice
 from .spine import constant_spline
 from .errors import InputError
 
-__all__ = ["SyntheticTube", "SURFACES", "CONDITIONS", "make_tube", "sample_tube", "view_direction", "constant_spline"]
+__all__ = ["SyntheticTube", "SURFACES", "CONDITIONS", "make_tube", "sample_tube", "view_direction", "constant_spline",
+           "SyntheticBranch", "SyntheticNetwork", "NETWORKS", "make_network", "MAX_SYNTH_POINTS"]
 
 _TABLE1 = [[-3.000, 6.660, 0.000], [-0.337, 5.660, -4.660], [0.410, 0.430, -8.052],
            [-2.037, -7.906, -3.354], [1.813, -6.807, -0.175], [6.760, -3.150, 0.000]]
@@ -51,6 +71,11 @@ _TABLE3 = [[-4.000, 4.000, 0.000], [-0.478, 4.547, 0.000], [3.335, 2.618, 0.000]
            [1.428, -1.214, 0.000], [-3.543, -1.614, 0.000], [-4.257, -4.700, 0.000]]
 _KNOTS_6 = [0, 0, 0, 0, 1, 2, 3, 3, 3, 3]
 _KNOTS_10 = [0, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 7, 7, 7]
+#: Most points a generator makes.  Sampling holds about 750 bytes per point at its peak (the rejection
+#: sampler's candidates and their frames: measured 725 bytes per point for make_tube at 1 and 4 million
+#: points), so 20 million points need some 15 GB, most of a 24 GB machine; more is refused before anything
+#: is allocated.
+MAX_SYNTH_POINTS = 20_000_000
 #: A one-sided scan's viewing direction, projected on a cross-section's plane, shorter than this
 #: (the spine points at the viewer) gives no side to face; such cross-sections keep an arbitrary one.
 VIEW_MIN_PROJECTION = 0.1
@@ -258,6 +283,33 @@ def view_direction(spine: BSpline) -> np.ndarray:
     return np.linalg.svd(xyz - xyz.mean(axis=0))[2][-1]
 
 
+def _surface_parameters(spine: BSpline, radius: BSpline, n: int, rng, sampling: str = "area",
+                        arc: tuple[float, float] = (0.0, 2 * np.pi), view=None, density_ratio: float = 1.0,
+                        bound: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters (t, s) of ``n`` points on the canal surface, drawn as :func:`sample_tube` describes.
+
+    ``arc`` is the range of s; ``bound`` an upper bound of the area element (by default 1.2 times the
+    largest of 20000 random samples of it).
+    """
+    lo, hi = arc
+    if sampling == "parameter" and density_ratio == 1:
+        return rng.uniform(0.0, 1.0, n), rng.uniform(lo, hi, n)
+    if sampling == "area" and bound is None:
+        bound = 1.2 * _area_element(spine, radius, rng.uniform(0, 1, 20000), rng.uniform(lo, hi, 20000),
+                                    view).max()
+    ts, ss = np.empty(0), np.empty(0)
+    while len(ts) < n:
+        t = rng.uniform(0.0, 1.0, 2 * n)
+        s = rng.uniform(lo, hi, 2 * n)
+        keep = np.ones(2 * n, bool)
+        if sampling == "area":
+            keep &= rng.uniform(0.0, bound, 2 * n) < _area_element(spine, radius, t, s, view)
+        if density_ratio != 1:
+            keep &= rng.uniform(0.0, 1.0, 2 * n) < density_ratio ** -t
+        ts, ss = np.concatenate([ts, t[keep]]), np.concatenate([ss, s[keep]])
+    return ts[:n], ss[:n]
+
+
 def sample_tube(spine: BSpline, radius: BSpline, n: int, noise: float, rng, sampling: str = "area", *,
                 noise_model: str = "uniform", arc: float = 360.0,
                 density_ratio: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -294,24 +346,7 @@ def sample_tube(spine: BSpline, radius: BSpline, n: int, noise: float, rng, samp
     # A full scan draws s from [0, 2 pi), a one-sided one from the arc around the viewing side.
     lo, hi = (0.0, 2 * np.pi) if arc == 360 else (-np.radians(arc) / 2, np.radians(arc) / 2)
     view = None if arc == 360 else view_direction(spine)
-    if sampling == "parameter" and density_ratio == 1:
-        t = rng.uniform(0.0, 1.0, n)
-        s = rng.uniform(lo, hi, n)
-    else:
-        if sampling == "area":
-            bound = 1.2 * _area_element(spine, radius, rng.uniform(0, 1, 20000), rng.uniform(lo, hi, 20000),
-                                        view).max()
-        ts, ss = np.empty(0), np.empty(0)
-        while len(ts) < n:
-            t = rng.uniform(0.0, 1.0, 2 * n)
-            s = rng.uniform(lo, hi, 2 * n)
-            keep = np.ones(2 * n, bool)
-            if sampling == "area":
-                keep &= rng.uniform(0.0, bound, 2 * n) < _area_element(spine, radius, t, s, view)
-            if density_ratio != 1:
-                keep &= rng.uniform(0.0, 1.0, 2 * n) < density_ratio ** -t
-            ts, ss = np.concatenate([ts, t[keep]]), np.concatenate([ss, s[keep]])
-        t, s = ts[:n], ss[:n]
+    t, s = _surface_parameters(spine, radius, n, rng, sampling, (lo, hi), view, density_ratio)
     points, normal, _, _ = _envelope(spine, radius, t, s, view=view)
     if noise <= 0:
         eps = np.zeros(n)
@@ -320,6 +355,48 @@ def sample_tube(spine: BSpline, radius: BSpline, n: int, noise: float, rng, samp
     else:
         eps = rng.uniform(-noise, noise, n)
     return points + eps[:, None] * normal, normal
+
+
+def _generator(rng) -> np.random.Generator:
+    """``rng`` as a generator: None is seed 0, an integer >= 0 a seed, a Generator itself."""
+    if rng is None:
+        return np.random.default_rng(0)
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool) and rng >= 0:
+        return np.random.default_rng(int(rng))
+    raise InputError(f"rng must be None, a seed (an integer >= 0) or a numpy.random.Generator, got {rng!r}")
+
+
+def _point_count(n) -> int:
+    """``n`` as a number of points: a whole number in [1, MAX_SYNTH_POINTS]."""
+    whole = isinstance(n, (int, np.integer)) or (isinstance(n, (float, np.floating)) and float(n).is_integer())
+    if isinstance(n, bool) or not whole:
+        raise InputError(f"n must be a whole number of points, got {n!r}")
+    if n < 1:
+        raise InputError(f"n must be a positive number of points, got {n!r}")
+    if n > MAX_SYNTH_POINTS:
+        raise InputError(f"n = {n!r} points would not fit in memory; at most {MAX_SYNTH_POINTS:,} can be "
+                         "generated at once")
+    return int(n)
+
+
+def _number(value, name: str) -> float:
+    """``value`` as a finite float."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(v):
+        raise InputError(f"{name} must be a finite number, got {value!r}")
+    return v
+
+
+def _diagonal(spine: BSpline, radius: BSpline) -> float:
+    """Diagonal of the bounding box of the tube around ``spine`` (its size)."""
+    t = np.linspace(0.0, 1.0, 512)
+    xyz, r = spine(t), radius(t)
+    return float(np.linalg.norm(np.ptp(xyz, axis=0) + 2 * r.max()))
 
 
 def make_tube(name: str = "fig9-pipe", *, n: int = 2000, noise: float | None = None, rng=None,
@@ -333,12 +410,13 @@ def make_tube(name: str = "fig9-pipe", *, n: int = 2000, noise: float | None = N
         One of ``SURFACES`` (``fig9-pipe``, ``fig15-pipe``, ``fig14-canal``, ``fig16-canal``, ``helix``,
         ``torus``, ``trefoil``, ``elbow``, ``tight-helix``, ``long-thin``, ``canal-x3``).
     n : int
-        Number of points, stray points included (the paper used 2000).
+        Number of points, stray points included (the paper used 2000); at most ``MAX_SYNTH_POINTS``.
     noise : float, optional
         Half-width of the uniform perturbation along the normal (the standard deviation for
-        ``noise_model="gaussian"``); default the surface's own value.
+        ``noise_model="gaussian"``), in the surface's units; default the surface's own value.  It may
+        not exceed the diagonal of the surface's bounding box.
     rng : numpy.random.Generator or int, optional
-        Random generator or seed (default seed 0, so the same call gives the same cloud).
+        Random generator or seed, an integer >= 0 (default seed 0, so the same call gives the same cloud).
     sampling : {"area", "parameter"}
         Uniform by area (default), or uniform in the surface parameters (s, t) as the paper most
         likely sampled (see :func:`sample_tube`).
@@ -350,35 +428,739 @@ def make_tube(name: str = "fig9-pipe", *, n: int = 2000, noise: float | None = N
     outliers : float
         Share of the ``n`` points that are stray, uniform in the bounding box of the others.
 
+    Raises
+    ------
+    InputError
+        An unknown name or an argument out of its range (checked before anything is allocated).
+
     Examples
     --------
     >>> tube = make_tube("fig9-pipe", rng=1)
     >>> tube.points.shape, tube.closed
     ((2000, 3), False)
-    >>> make_tube("elbow", outliers=0.05, rng=1).outlier.sum()
+    >>> int(make_tube("elbow", outliers=0.05, rng=1).outlier.sum())
     100
     """
     choice(name, "surface name", tuple(SURFACES))
-    if int(n) < 1:
-        raise InputError(f"n must be a positive number of points, got {n!r}")
+    n = _point_count(n)
     if not 0 <= outliers < 1:
         raise InputError(f"outliers must be a share in [0, 1), got {outliers!r}")
     spine_f, radius_f, closed, default_noise, _ = SURFACES[name]
-    noise = default_noise if noise is None else float(noise)
+    noise = default_noise if noise is None else _number(noise, "noise")
     if noise < 0:
         raise InputError(f"noise must be >= 0, got {noise!r}")
-    rng = np.random.default_rng(0 if rng is None else rng)
+    rng = _generator(rng)
     spine, radius = spine_f(), radius_f()
-    n_stray = int(round(outliers * int(n)))
-    points, normals = sample_tube(spine, radius, int(n) - n_stray, noise, rng, sampling,
+    size = _diagonal(spine, radius)
+    if noise > size:
+        raise InputError(f"noise {noise!r} is larger than the surface itself (the diagonal of its bounding box "
+                         f"is {size:.3g}); give a noise well below the radius")
+    n_stray = int(round(outliers * n))
+    points, normals = sample_tube(spine, radius, n - n_stray, noise, rng, sampling,
                                   noise_model=noise_model, arc=float(arc), density_ratio=float(density_ratio))
-    outlier = np.zeros(int(n), bool)
+    outlier = np.zeros(n, bool)
     if n_stray:
         stray = rng.uniform(points.min(axis=0), points.max(axis=0), (n_stray, 3))
         directions = rng.normal(size=(n_stray, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-        order = rng.permutation(int(n))
+        order = rng.permutation(n)
         points = np.vstack([points, stray])[order]
         normals = np.vstack([normals, directions])[order]
         outlier[order >= len(order) - n_stray] = True
     return SyntheticTube(name, points, normals, spine, radius, closed, noise, noise_model, outlier, float(arc))
+
+
+# --------------------------------------------------------------------------------------------------
+# networks: several tubes joined at junctions, side by side, crossing, with clutter around them
+
+#: A point of one tube counts as inside another only if it lies deeper than this share of that tube's
+#: (largest) radius: the circle where the two halves of a split pipe meet is exactly on both surfaces, and rounding
+#: (about 1e-15 r) must not remove it.
+INSIDE_MARGIN = 1e-6
+#: Relative noise of a network must stay below this share of the local radius: beyond it the offsets of
+#: opposite sides of a thin tube overlap and the cloud stops looking like a surface.
+MAX_NETWORK_NOISE = 0.5
+#: Largest share of the points on clutter: at least a tenth stays on the tubes.
+MAX_CLUTTER = 0.9
+#: Largest ``size`` of the ``plant`` network, so that a mistyped size cannot ask for millions of tubes:
+#: 100 bays are 2,300 tubes, which take about ten seconds to set up before any point is drawn.
+MAX_PLANT_SIZE = 100
+#: Gap between the surfaces of neighbouring pipes of a rack, in radii of the smaller one: real racks leave
+#: one to two diameters for flanges and insulation; the middle of that range keeps neighbours close enough
+#: to test their separation.
+RACK_CLEARANCE = 1.5
+#: Gap between the objects of a scene or plant (racks, tees, runs, boxes), in the scene's units: several
+#: radii of its largest pipe (2), so that objects are clearly apart.
+SCENE_GAP = 6.0
+#: A floor reaches this many of the largest radius beyond the footprint of what stands on it.
+FLOOR_MARGIN = 3.0
+#: Golden-section steps of the inside test: they shrink the bracket (four spine samples, at most a
+#: radius) by 0.618^32 = 2e-7, and the depth's error is quadratic in that: below 1e-12 radii.
+GOLDEN_STEPS = 32
+#: Candidate points drawn per point wanted, before the ones inside other tubes are removed (a first
+#: guess; the sampler draws again with a larger share if too many were inside).
+OVERSAMPLE = 1.15
+
+
+@dataclass(frozen=True)
+class SyntheticBranch:
+    """One tube of a :class:`SyntheticNetwork`: its spine and radius between two ends.
+
+    Attributes
+    ----------
+    spine : scipy.interpolate.BSpline
+        True spine C(t), t in [0, 1], parameterised by normalised arc length; t = 0 and t = 1 are its ends.
+    radius : scipy.interpolate.BSpline
+        True radius r(t) on the same parameter (:func:`constant_spline` for a pipe).
+    ends : tuple
+        ``(junction at t = 0, junction at t = 1)``: an index into the network's ``junctions``, or None for
+        a free (open) end.
+    """
+
+    spine: BSpline
+    radius: BSpline
+    ends: tuple = (None, None)
+
+
+@dataclass(frozen=True)
+class SyntheticNetwork:
+    """A sampled network of tubes with its ground truth.
+
+    Attributes
+    ----------
+    name : str
+    points, normals : ndarray, shape (N, 3)
+        Sampled (perturbed) points and the true outward unit normals there (on clutter: the face's normal).
+    label : ndarray of int, shape (N,)
+        Index into ``branches`` of the branch each point was sampled on; -1 for clutter (floor, boxes).
+    branches : tuple of SyntheticBranch
+    junctions : ndarray, shape (J, 3)
+        Junction points; each lies exactly at the spine ends that list it.
+    noise : float
+        Relative noise: a tube point was moved along its normal by U(-noise r, noise r), r the radius of
+        its branch there; a clutter point by the same share of the median radius of the branches.
+    """
+
+    name: str
+    points: np.ndarray
+    normals: np.ndarray
+    label: np.ndarray
+    branches: tuple
+    junctions: np.ndarray
+    noise: float
+
+    @property
+    def components(self) -> list[list[int]]:
+        """Branch indices of each connected network (branches joined through junctions), sorted."""
+        parent = list(range(len(self.branches)))
+
+        def root(i):
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        first: dict[int, int] = {}
+        for b, branch in enumerate(self.branches):
+            for j in branch.ends:
+                if j is not None:
+                    parent[root(b)] = root(first.setdefault(j, b))
+        groups: dict[int, list[int]] = {}
+        for b in range(len(self.branches)):
+            groups.setdefault(root(b), []).append(b)
+        return sorted(groups.values())
+
+    @property
+    def clutter(self) -> np.ndarray:
+        """True for the points on clutter (``label == -1``)."""
+        return self.label == -1
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """What a network builder returns: the tubes, their junctions and the clutter around them.
+
+    ``floor`` is ``(x0, x1, y0, y1, z)``, a horizontal rectangle; ``boxes`` are ``(low corner, high corner)``
+    of axis-aligned boxes standing on the floor; ``clutter`` is the network's default share of points on
+    them.
+    """
+
+    branches: tuple
+    junctions: np.ndarray
+    floor: tuple | None = None
+    boxes: tuple = ()
+    clutter: float = 0.0
+
+
+# --- geometry helpers ------------------------------------------------------------------------------------
+
+def _straight(a, b) -> BSpline:
+    """The segment from ``a`` to ``b`` as a cubic spine on normalised arc length."""
+    return _by_arclength(np.linspace(np.asarray(a, float), np.asarray(b, float), 8))
+
+
+def _taper(r0: float, r1: float) -> BSpline:
+    """A radius falling (or growing) linearly in t from ``r0`` to ``r1``."""
+    return BSpline(np.r_[np.zeros(4), np.ones(4)], np.linspace(r0, r1, 4), 3)
+
+
+def _turning(start, e1, e2, angle0: float, angle1: float, length: float) -> BSpline:
+    """A planar spine from ``start`` whose heading turns evenly from ``angle0`` to ``angle1`` (degrees,
+    measured from ``e1`` towards ``e2``) over ``length``: an arc of a circle, exactly integrated."""
+    start, e1, e2 = (np.asarray(v, float) for v in (start, e1, e2))
+    a0, a1 = np.radians(angle0), np.radians(angle1)
+    s = np.linspace(0.0, length, 400)[:, None]
+    if a1 == a0:
+        x, y = s * np.cos(a0), s * np.sin(a0)
+    else:
+        k = (a1 - a0) / length
+        x, y = (np.sin(a0 + k * s) - np.sin(a0)) / k, (np.cos(a0) - np.cos(a0 + k * s)) / k
+    return _by_arclength(start + x * e1 + y * e2)
+
+
+def _moved(spline: BSpline, offset=(0.0, 0.0, 0.0), turn: np.ndarray | None = None) -> BSpline:
+    """``spline`` rotated by the matrix ``turn`` about the origin, then moved by ``offset`` (a B-spline's
+    control points carry any affine map)."""
+    c = spline.c if turn is None else spline.c @ np.asarray(turn).T
+    return BSpline(spline.t, c + np.asarray(offset, float), spline.k)
+
+
+def _tee(start, end, r_main: float, side, side_length: float, r_side: float) -> _Layout:
+    """A straight main pipe split at its middle into two branches, and a side pipe from there."""
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    junction = (start + end) / 2
+    side = np.asarray(side, float) / np.linalg.norm(side)
+    return _Layout((SyntheticBranch(_straight(start, junction), constant_spline(r_main), (None, 0)),
+                    SyntheticBranch(_straight(junction, end), constant_spline(r_main), (0, None)),
+                    SyntheticBranch(_straight(junction, junction + side_length * side), constant_spline(r_side),
+                                    (0, None))),
+                   junction[None])
+
+
+def _rack(radii, length: float, z: float) -> _Layout:
+    """Parallel straight pipes along x (from 0 to ``length``) side by side in y, axes at height ``z``, the
+    gap between neighbours ``RACK_CLEARANCE`` times the smaller radius."""
+    y, branches = radii[0], []
+    for i, r in enumerate(radii):
+        if i:
+            y += radii[i - 1] + RACK_CLEARANCE * min(r, radii[i - 1]) + r
+        branches.append(SyntheticBranch(_straight([0.0, y, z], [length, y, z]), constant_spline(r)))
+    return _Layout(tuple(branches), np.empty((0, 3)))
+
+
+def _crossing(length: float, r: float, z: float) -> _Layout:
+    """Two straight pipes crossing at right angles in their middles, axes ``2.75 r`` apart (a gap of
+    0.75 r between the surfaces)."""
+    h = length / 2
+    return _Layout((SyntheticBranch(_straight([-h, 0.0, z], [h, 0.0, z]), constant_spline(r)),
+                    SyntheticBranch(_straight([0.0, -h, z + 2.75 * r], [0.0, h, z + 2.75 * r]),
+                                    constant_spline(r))),
+                   np.empty((0, 3)))
+
+
+def _box(low, size) -> _Layout:
+    """A box standing with its low corner at ``low``."""
+    low = np.asarray(low, float)
+    return _Layout((), np.empty((0, 3)), boxes=((low, low + np.asarray(size, float)),))
+
+
+def _footprint(layout: _Layout) -> tuple[np.ndarray, np.ndarray]:
+    """Low and high corners of the bounding box of a layout's tubes and boxes."""
+    t = np.linspace(0.0, 1.0, 256)
+    corners = [b.spine(t) + s * b.radius(t)[:, None] for b in layout.branches for s in (-1.0, 1.0)]
+    corners += [np.vstack(box) for box in layout.boxes]
+    xyz = np.vstack(corners)
+    return xyz.min(axis=0), xyz.max(axis=0)
+
+
+def _placed(layout: _Layout, offset) -> _Layout:
+    """``layout`` moved by ``offset``."""
+    offset = np.asarray(offset, float)
+    return _Layout(tuple(SyntheticBranch(_moved(b.spine, offset), b.radius, b.ends) for b in layout.branches),
+                   layout.junctions + offset, None, tuple((lo + offset, hi + offset) for lo, hi in layout.boxes),
+                   layout.clutter)
+
+
+def _merged(layouts) -> _Layout:
+    """Several layouts as one (their junction indices renumbered)."""
+    branches, junctions, boxes = [], [], []
+    for layout in layouts:
+        shift = sum(len(j) for j in junctions)
+        branches += [SyntheticBranch(b.spine, b.radius, tuple(None if j is None else j + shift for j in b.ends))
+                     for b in layout.branches]
+        junctions.append(layout.junctions)
+        boxes += layout.boxes
+    return _Layout(tuple(branches), np.vstack(junctions) if junctions else np.empty((0, 3)), None, tuple(boxes))
+
+
+def _row(layouts, gap: float = SCENE_GAP, y: float = 0.0) -> _Layout:
+    """Layouts placed one after another along x, ``gap`` apart, their low y edges at ``y``."""
+    placed, x = [], 0.0
+    for layout in layouts:
+        lo, hi = _footprint(layout)
+        placed.append(_placed(layout, [x - lo[0], y - lo[1], 0.0]))
+        x += hi[0] - lo[0] + gap
+    return _merged(placed)
+
+
+def _on_floor(layout: _Layout, clutter: float, z: float | None = None) -> _Layout:
+    """``layout`` on a floor that reaches ``FLOOR_MARGIN`` largest radii beyond it; by default one
+    largest radius below its lowest point."""
+    lo, hi = _footprint(layout)
+    r_max = max((float(b.radius(np.linspace(0, 1, 64)).max()) for b in layout.branches), default=1.0)
+    m = FLOOR_MARGIN * r_max
+    z = lo[2] - r_max if z is None else z
+    return _Layout(layout.branches, layout.junctions, (lo[0] - m, hi[0] + m, lo[1] - m, hi[1] + m, z),
+                   layout.boxes, clutter)
+
+
+# --- the networks ----------------------------------------------------------------------------------------
+
+def _y_vessel() -> _Layout:
+    x, y, z = np.eye(3)
+    # The parent arrives along +x at the junction (the origin), sagging gently (its heading turns 8 degrees).
+    parent = _turning([0.0, 0.0, 0.0], x, z, -8.0, 0.0, 8.0)
+    parent = _moved(parent, -parent.c[-1])  # make_interp_spline's last control point is its end
+    daughters = (_turning([0, 0, 0], x, y, 25.0, 10.0, 7.0), _turning([0, 0, 0], x, y, -50.0, -30.0, 7.0))
+    return _Layout((SyntheticBranch(parent, _taper(1.0, 0.85), (None, 0)),
+                    SyntheticBranch(daughters[0], _taper(0.75, 0.55), (0, None)),
+                    SyntheticBranch(daughters[1], _taper(0.65, 0.5), (0, None))),
+                   np.zeros((1, 3)))
+
+
+def _t_junction() -> _Layout:
+    return _tee([-8.0, 0.0, 0.0], [8.0, 0.0, 0.0], 1.0, [0.0, 1.0, 0.0], 7.0, 0.6)
+
+
+#: The tree's stem: height, sideways sag, radius at its foot and top, heights of the side branches.
+_STEM = (20.0, 0.8, 1.0, 0.6, (5.0, 10.0, 15.0))
+#: The tree's side branches: (angle from the stem at the junction, angle at the tip, azimuth, length,
+#: radius at the junction, at the tip); each turns gently upwards.
+_SIDES = ((55.0, 45.0, 0.0, 8.0, 0.5, 0.35), (45.0, 35.0, 130.0, 7.0, 0.45, 0.3),
+          (50.0, 40.0, 250.0, 6.0, 0.4, 0.28))
+
+
+def _tree() -> _Layout:
+    height, sag, r_foot, r_top, heights = _STEM
+
+    def stem(z):  # a gentle bow in x
+        return np.column_stack([sag * np.sin(np.pi * z / height), np.zeros_like(z), z])
+
+    def tangent(z):
+        d = np.array([sag * np.pi / height * np.cos(np.pi * z / height), 0.0, 1.0])
+        return d / np.linalg.norm(d)
+
+    dense = stem(np.linspace(0.0, height, 20001))
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+    cuts = [0.0, *heights, height]
+    s_cut = np.interp(cuts, np.linspace(0.0, height, 20001), arc)
+    r_cut = r_foot + (r_top - r_foot) * s_cut / arc[-1]  # radius linear in arc length along the whole stem
+    branches = []
+    for i in range(len(cuts) - 1):
+        ends = (i - 1 if i else None, i if i < len(heights) else None)
+        branches.append(SyntheticBranch(_by_arclength(stem(np.linspace(cuts[i], cuts[i + 1], 300))),
+                                        _taper(r_cut[i], r_cut[i + 1]), ends))
+    junctions = stem(np.asarray(heights, float))
+    for j, (a0, a1, azimuth, length, r0, r1) in enumerate(_SIDES):
+        up = tangent(heights[j])
+        out = np.array([np.cos(np.radians(azimuth)), np.sin(np.radians(azimuth)), 0.0])
+        out -= (out @ up) * up
+        branches.append(SyntheticBranch(_turning(junctions[j], up, out / np.linalg.norm(out), a0, a1, length),
+                                        _taper(r0, r1), (j, None)))
+    return _Layout(tuple(branches), junctions)
+
+
+def _rack_of_four() -> _Layout:
+    return _rack((1.0, 1.5, 0.8, 2.0), 20.0, 0.0)
+
+
+def _crossing_pair() -> _Layout:
+    return _crossing(16.0, 1.0, 0.0)
+
+
+def _floor_clutter() -> _Layout:
+    # A pipe of radius 1 bowing 1.5 sideways, its bottom one radius above the floor z = 0; a 3 x 3 x 3
+    # box beside the middle of the bow, 2 radii from the pipe's surface.
+    x = np.linspace(-8.0, 8.0, 400)
+    pipe = _by_arclength(np.column_stack([x, 1.5 * np.cos(np.pi * x / 16.0), np.full_like(x, 2.0)]))
+    layout = _Layout((SyntheticBranch(pipe, constant_spline(1.0)),), np.empty((0, 3)),
+                     boxes=((np.array([-1.5, 1.5 + 1.0 + 2.0, 0.0]), np.array([1.5, 7.5, 3.0])),))
+    return _on_floor(layout, 0.3, z=0.0)
+
+
+def _scene() -> _Layout:
+    tee = _tee([0.0, 0.0, 2.0], [16.0, 0.0, 2.0], 1.0, [0.0, 1.0, 0.0], 7.0, 0.6)
+    rack = _rack((1.0, 0.6, 1.2), 16.0, 2.2)
+    pair = _crossing(16.0, 1.0, 2.0)
+    return _on_floor(_row([tee, rack, pair, _box([0.0, 0.0, 0.0], [3.0, 3.0, 3.0])]), 0.2, z=0.0)
+
+
+#: One bay of the plant: racks (radii, length, along y?), elbow runs (radius, leg, rising?) and tees
+#: (main radius, main length, side radius, side length, side upwards?).  Bay ``i`` rolls each rack's
+#: radii by ``i``, so no two neighbouring bays are alike.
+_PLANT_RACKS = (((0.5, 1.2, 2.0, 0.8), 20.0, False), ((0.6, 0.9, 1.5, 0.5, 1.1, 1.8), 24.0, False),
+                ((1.0, 0.7, 1.3, 0.5, 1.6), 20.0, True))
+_PLANT_ELBOWS = ((1.0, 8.0, False), (0.7, 6.0, True))
+_PLANT_TEES = ((1.2, 14.0, 0.7, 5.0, True), (0.8, 12.0, 0.5, 5.0, False))
+#: Height of the lowest pipe bottoms above the plant's floor.
+_PLANT_CLEARANCE = 1.5
+
+
+def _plant_bay(i: int) -> _Layout:
+    parts = []
+    quarter = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # x -> y
+    for radii, length, along_y in _PLANT_RACKS:
+        radii = tuple(np.roll(radii, i))
+        rack = _rack(radii, length, _PLANT_CLEARANCE + max(radii))
+        if along_y:
+            rack = _Layout(tuple(SyntheticBranch(_moved(b.spine, turn=quarter), b.radius) for b in rack.branches),
+                           rack.junctions)
+        parts.append(rack)
+    for r, leg, rising in _PLANT_ELBOWS:
+        spine = _elbow_spine(leg=leg, bend=2 * r)  # in the plane z = 0, from (0, -leg) to (2 r + leg, 2 r)
+        if rising:  # turn it into the plane y = 0: the run comes along the floor and rises
+            spine = _moved(spine, turn=np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]))
+            spine = _moved(spine, [0.0, 0.0, _PLANT_CLEARANCE + r])
+        else:
+            spine = _moved(spine, [0.0, 0.0, _PLANT_CLEARANCE + r])
+        parts.append(_Layout((SyntheticBranch(spine, constant_spline(r)),), np.empty((0, 3))))
+    for r, length, r_side, side_length, upwards in _PLANT_TEES:
+        z = _PLANT_CLEARANCE + r
+        parts.append(_tee([0.0, 0.0, z], [length, 0.0, z], r, [0.0, 0.0, 1.0] if upwards else [0.0, 1.0, 0.0],
+                          side_length, r_side))
+    parts.append(_box([0.0, 0.0, 0.0], [4.0, 3.0, 2.5]))
+    return _row(parts)
+
+
+def _plant(size: int = 1) -> _Layout:
+    """``size`` bays of 23 tubes each, in a grid of about ``sqrt(size)`` columns."""
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 1 <= size <= MAX_PLANT_SIZE:
+        raise InputError(f"size must be a whole number of bays in [1, {MAX_PLANT_SIZE}], got {size!r}")
+    bays = [_plant_bay(i) for i in range(int(size))]
+    extents = [np.subtract(*_footprint(bay)[::-1]) for bay in bays]
+    width = max(e[0] for e in extents) + SCENE_GAP
+    depth = max(e[1] for e in extents) + SCENE_GAP
+    columns = int(np.ceil(np.sqrt(size)))
+    placed = [_placed(bay, [width * (i % columns), depth * (i // columns), 0.0]) for i, bay in enumerate(bays)]
+    return _on_floor(_merged(placed), 0.2, z=0.0)
+
+
+#: name -> (builder, description).  ``builder(**options)`` returns the network's geometry (branches,
+#: junctions, clutter and its default share of points); only ``plant`` takes an option (``size``).
+NETWORKS = {
+    "y-vessel": (_y_vessel, "a tapering canal (radius 1 to 0.85, length 8) forking into two tapering, gently "
+                            "curving canals (0.75 to 0.55 and 0.65 to 0.5, length 7) at 25 and 50 degrees: "
+                            "3 branches, 1 junction"),
+    "t-junction": (_t_junction, "a straight pipe of radius 1 and length 16 with a perpendicular pipe of "
+                                "radius 0.6 from its middle, reaching 7 beyond its axis: 3 branches, 1 junction"),
+    "tree": (_tree, "a tapering, slightly bowed stem (radius 1 to 0.6, height 20) with tapering side branches "
+                    "(radii 0.5, 0.45, 0.4) at heights 5, 10, 15, 45-55 degrees from it: 7 branches, "
+                    "3 junctions"),
+    "rack": (_rack_of_four, "4 parallel straight pipes (radii 1, 1.5, 0.8, 2; length 20) side by side, "
+                            "1.5 smaller radii apart"),
+    "crossing": (_crossing_pair, "two straight pipes of radius 1 and length 16 crossing at right angles, "
+                                 "axes 2.75 apart (0.75 r between the surfaces)"),
+    "floor-clutter": (_floor_clutter, "a gently curving pipe of radius 1 one radius above a floor, beside a "
+                                      "3 x 3 x 3 box; 30 % of the points on floor and box"),
+    "scene": (_scene, "a T junction, a rack of 3 pipes and a crossing pair, apart from each other, with a "
+                      "box on a floor (20 % of the points): 8 branches, 1 junction"),
+    "plant": (_plant, "a plant for benchmarks: per bay (option size, default 1) 3 racks of 4-6 pipes "
+                      "(radii 0.5-2), 2 runs with a 90-degree elbow, 2 tees and a box, on a floor (20 % "
+                      "of the points): 23 tubes per bay"),
+}
+
+
+# --- sampling ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Tube:
+    """A branch prepared for the inside test: dense spine samples, their KD-tree, its bounding box."""
+
+    spine: BSpline
+    radius: BSpline
+    length: float
+    step: float          # arc length between samples
+    tree: cKDTree
+    r_max: float
+    slope: float         # largest |dr/ds|
+    low: np.ndarray
+    high: np.ndarray
+
+    @classmethod
+    def of(cls, branch: SyntheticBranch) -> "_Tube":
+        fine = np.linspace(0.0, 1.0, 2049)
+        xyz, r = branch.spine(fine), branch.radius(fine)
+        length = float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum())
+        # Samples a quarter of the smallest radius apart: every point of the tube is within r + step / 2
+        # of one of them.
+        m = int(max(64, np.ceil(length / (0.25 * r.min())))) + 1
+        t = np.linspace(0.0, 1.0, m)
+        centres, radii = branch.spine(t), branch.radius(t)
+        step = length / (m - 1)
+        slope = float(np.abs(np.diff(r)).max() / (length / (len(fine) - 1)))
+        return cls(branch.spine, branch.radius, length, step, cKDTree(centres), float(radii.max()), slope,
+                   (centres - radii[:, None]).min(axis=0) - step, (centres + radii[:, None]).max(axis=0) + step)
+
+    def depth(self, points: np.ndarray) -> np.ndarray:
+        """``min_t |P - C(t)| - r(t)`` (negative inside the tube) where it is below ``step``; +inf elsewhere.
+
+        The nearest spine sample brackets the minimum; a golden-section search narrows the bracket
+        ``GOLDEN_STEPS`` times.
+        """
+        out = np.full(len(points), np.inf)
+        d, i = self.tree.query(points, distance_upper_bound=self.r_max + self.step)
+        near = np.flatnonzero(np.isfinite(d))
+        if not len(near):
+            return out
+        p = points[near]
+        n_samples = self.tree.n
+        half = (2 * self.step + 2 * self.slope * (self.r_max + self.step)) / self.length
+        t0 = i[near] / (n_samples - 1)
+        a, b = np.clip(t0 - half, 0.0, 1.0), np.clip(t0 + half, 0.0, 1.0)
+
+        def g(t):
+            return np.linalg.norm(p - self.spine(t), axis=1) - self.radius(t)
+
+        ratio = (np.sqrt(5.0) - 1) / 2
+        c, e = b - ratio * (b - a), a + ratio * (b - a)
+        fc, fe = g(c), g(e)
+        for _ in range(GOLDEN_STEPS):
+            left = fc < fe  # the minimum is in [a, e]
+            b = np.where(left, e, b)
+            a = np.where(left, a, c)
+            new = np.where(left, b - ratio * (b - a), a + ratio * (b - a))
+            fn = g(new)
+            c, e, fc, fe = (np.where(left, new, e), np.where(left, c, new),
+                            np.where(left, fn, fe), np.where(left, fc, fn))
+        best = np.minimum(np.minimum(fc, fe), np.minimum(g(a), g(b)))
+        out[near] = best
+        return out
+
+
+def _inside_other(points: np.ndarray, label: np.ndarray, tubes) -> np.ndarray:
+    """True for each point inside a tube other than its own (deeper than INSIDE_MARGIN of its radius)."""
+    inside = np.zeros(len(points), bool)
+    if not len(points):
+        return inside
+    # Bin the points on a coarse grid in (x, y) so that each tube looks only at the points near it.
+    cell = 4 * max(t.r_max for t in tubes)
+    origin = points[:, :2].min(axis=0)
+    ij = np.floor((points[:, :2] - origin) / cell).astype(np.int64)
+    nx = int(ij[:, 0].max()) + 1
+    key = ij[:, 1] * nx + ij[:, 0]
+    order = np.argsort(key, kind="stable")
+    keys = key[order]
+    for b, tube in enumerate(tubes):
+        i0, j0 = np.floor((tube.low[:2] - origin) / cell).astype(np.int64)
+        i1, j1 = np.floor((tube.high[:2] - origin) / cell).astype(np.int64)
+        i0, i1 = max(i0, 0), min(i1, nx - 1)
+        if i1 < i0:
+            continue
+        rows = np.arange(max(j0, 0), j1 + 1)
+        starts = np.searchsorted(keys, rows * nx + i0, side="left")
+        stops = np.searchsorted(keys, rows * nx + i1, side="right")
+        idx = np.concatenate([order[s:e] for s, e in zip(starts, stops)] or [np.empty(0, np.int64)])
+        idx = idx[(label[idx] != b)
+                  & np.all((points[idx] >= tube.low) & (points[idx] <= tube.high), axis=1)]
+        if not len(idx):
+            continue
+        depth = tube.depth(points[idx])
+        inside[idx[depth < -INSIDE_MARGIN * tube.r_max]] = True
+    return inside
+
+
+@dataclass(frozen=True)
+class _Patch:
+    """A piece of surface to sample: ``draw(m, rng) -> (points, normals, t)``, its area and label."""
+
+    draw: object
+    area: float
+    label: int
+
+
+def _lateral(index: int, branch: SyntheticBranch) -> _Patch:
+    """The canal surface of a branch (its envelope of spheres, without the ends)."""
+    spine, radius = branch.spine, branch.radius
+    # Area and bound of the area element from a 128 x 16 grid in (t, s): the element changes over a
+    # radius or more along the spine and like cos s around it (which 16 angles integrate exactly); the
+    # bound's margin of 1.2, as in sample_tube, covers a maximum between grid points.
+    t = (np.arange(128) + 0.5) / 128
+    s = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    tt, ss = np.repeat(t, len(s)), np.tile(s, len(t))
+    element = _area_element(spine, radius, tt, ss)
+    bound = 1.2 * element.max()
+
+    def draw(m, rng):
+        t, s = _surface_parameters(spine, radius, m, rng, bound=bound)
+        points, normals, _, _ = _envelope(spine, radius, t, s)
+        return points, normals, t
+
+    return _Patch(draw, float(element.mean() * 2 * np.pi), index)
+
+
+def _cap(index: int, branch: SyntheticBranch, end: int) -> _Patch:
+    """The part of the sphere at an end of a branch that bounds the tube (beyond the last characteristic
+    circle): it closes the tube where it meets others at a junction."""
+    centre, r = branch.spine(float(end)), float(branch.radius(float(end)))
+    velocity = branch.spine.derivative()(float(end))
+    tangent = velocity / np.linalg.norm(velocity)
+    rho = float(branch.radius.derivative()(float(end))) / np.linalg.norm(velocity)
+    sign = 1.0 if end else -1.0  # the cap is u.T >= -rho at t = 1, u.T <= -rho at t = 0
+
+    def draw(m, rng):
+        found = [np.empty((0, 3))]
+        while sum(len(f) for f in found) < m:
+            u = rng.normal(size=(2 * m + 8, 3))
+            u /= np.linalg.norm(u, axis=1, keepdims=True)
+            found.append(u[sign * (u @ tangent + rho) >= 0])
+        u = np.vstack(found)[:m]
+        return centre + r * u, u, np.full(m, float(end))
+
+    return _Patch(draw, float(2 * np.pi * r * r * (1 + sign * rho)), index)
+
+
+def _faces(floor, boxes) -> list[_Patch]:
+    """Clutter: the floor (without the boxes' footprints) and the top and sides of each box."""
+    patches = []
+
+    def rectangle(corner, e1, e2, normal, holes=()):
+        corner, e1, e2, normal = (np.asarray(v, float) for v in (corner, e1, e2, normal))
+
+        def draw(m, rng):
+            found = [np.empty((0, 3))]
+            while sum(len(f) for f in found) < m:
+                uv = rng.uniform(0.0, 1.0, (2 * m + 8, 2))
+                p = corner + uv[:, :1] * e1 + uv[:, 1:] * e2
+                out = np.ones(len(p), bool)
+                for lo, hi in holes:
+                    out &= ~np.all((p[:, :2] > lo[:2]) & (p[:, :2] < hi[:2]), axis=1)
+                found.append(p[out])
+            return np.vstack(found)[:m], np.tile(normal, (m, 1)), np.full(m, np.nan)
+
+        area = np.linalg.norm(np.cross(e1, e2)) - sum(np.prod(hi[:2] - lo[:2]) for lo, hi in holes)
+        patches.append(_Patch(draw, float(area), -1))
+
+    if floor is not None:
+        x0, x1, y0, y1, z = floor
+        rectangle([x0, y0, z], [x1 - x0, 0, 0], [0, y1 - y0, 0], [0, 0, 1],
+                  holes=[box for box in boxes if abs(box[0][2] - z) < 1e-9])
+    for lo, hi in boxes:
+        dx, dy, dz = hi - lo
+        rectangle([lo[0], lo[1], hi[2]], [dx, 0, 0], [0, dy, 0], [0, 0, 1])
+        rectangle(lo, [0, dy, 0], [0, 0, dz], [-1, 0, 0])
+        rectangle([hi[0], lo[1], lo[2]], [0, dy, 0], [0, 0, dz], [1, 0, 0])
+        rectangle(lo, [dx, 0, 0], [0, 0, dz], [0, -1, 0])
+        rectangle([lo[0], hi[1], lo[2]], [dx, 0, 0], [0, 0, dz], [0, 1, 0])
+    return patches
+
+
+def _sample_union(patches, n: int, rng, tubes):
+    """``n`` points uniform by area on the parts of ``patches`` outside every tube but their own.
+
+    Returns points, normals, labels and parameters t.
+    """
+    if n == 0 or not patches:
+        return np.empty((0, 3)), np.empty((0, 3)), np.empty(0, np.int64), np.empty(0)
+    area = np.array([p.area for p in patches])
+    m = int(np.ceil(OVERSAMPLE * n))
+    for _ in range(20):
+        counts = rng.multinomial(m, area / area.sum())
+        drawn = [p.draw(int(c), rng) for p, c in zip(patches, counts)]
+        points = np.vstack([d[0] for d in drawn])
+        normals = np.vstack([d[1] for d in drawn])
+        t = np.concatenate([d[2] for d in drawn])
+        label = np.repeat(np.array([p.label for p in patches], dtype=np.int64), counts)
+        keep = np.flatnonzero(~_inside_other(points, label, tubes))
+        if len(keep) >= n:
+            pick = np.sort(rng.choice(keep, n, replace=False))
+            return points[pick], normals[pick], label[pick], t[pick]
+        m = int(np.ceil(OVERSAMPLE * m * n / max(len(keep), 1)))
+    raise RuntimeError("the network's surfaces lie inside each other: no points could be kept")
+
+
+def make_network(name: str = "t-junction", *, n: int = 30_000, noise: float = 0.02, rng=None,
+                 clutter: float | None = None, **options) -> SyntheticNetwork:
+    """Sample one of the named tube networks (see :data:`NETWORKS`) with its ground truth.
+
+    The cloud covers the surface of the union of the tubes: each branch's canal surface is sampled
+    uniformly by area, and every point inside another branch's tube (closer to its spine than its radius
+    there, the spine's ends included as balls) is removed, so a side branch shows only where it leaves its
+    parent and crossing tubes show only their outsides.  A branch end at a junction is closed by the ball
+    there (the part not inside the other branches: the crotch of a fork).  Free ends are open, like a cut
+    pipe.  The density is the same on every tube; the clutter (floor, boxes) gets its own share of the
+    points.  Noise is relative: each point moves along its true normal by U(-noise r, noise r), r the
+    local radius (on clutter: the median radius of the branches).  Removal is decided before the noise,
+    so a noise-free cloud has no point inside any tube, and a noisy one none deeper than its own noise.
+
+    Parameters
+    ----------
+    name : str
+        One of ``NETWORKS``: ``y-vessel``, ``t-junction``, ``tree``, ``rack``, ``crossing``,
+        ``floor-clutter``, ``scene``, ``plant``.
+    n : int
+        Number of points, clutter included (at most ``MAX_SYNTH_POINTS``).
+    noise : float
+        Half-width of the offset along the normal as a share of the local radius, in [0, 0.5).
+    rng : numpy.random.Generator or int, optional
+        Random generator or seed (default seed 0: the same call gives the same cloud).
+    clutter : float, optional
+        Share of the points on clutter, in [0, 0.9]; default the network's own (0.3 for
+        ``floor-clutter``, 0.2 for ``scene`` and ``plant``, 0 for the others).  A network without clutter
+        objects gets a floor one largest radius below its lowest point when ``clutter > 0``.
+    **options
+        Options of the network's builder: only ``plant`` takes one, ``size`` (int, default 1, at most
+        ``MAX_PLANT_SIZE``), the number of bays of 23 tubes.
+
+    Returns
+    -------
+    SyntheticNetwork
+        Points in random order, with labels, normals and the branches and junctions.
+
+    Raises
+    ------
+    InputError
+        An unknown name or option, or an argument out of its range.
+
+    Examples
+    --------
+    >>> net = make_network("t-junction", n=3000, rng=1)
+    >>> net.points.shape, len(net.branches), len(net.junctions), net.components
+    ((3000, 3), 3, 1, [[0, 1, 2]])
+    >>> int(make_network("floor-clutter", n=1000, rng=1).clutter.sum())
+    300
+    """
+    choice(name, "network name", tuple(NETWORKS))
+    n = _point_count(n)
+    noise = _number(noise, "noise")
+    if not 0 <= noise < MAX_NETWORK_NOISE:
+        raise InputError(f"noise must be a share of the radius in [0, {MAX_NETWORK_NOISE}), got {noise!r}")
+    if clutter is not None:
+        share = _number(clutter, "clutter")
+        if not 0 <= share <= MAX_CLUTTER:
+            raise InputError(f"clutter must be a share of the points in [0, {MAX_CLUTTER}], got {clutter!r}")
+    rng = _generator(rng)
+    builder = NETWORKS[name][0]
+    accepted = set(inspect.signature(builder).parameters)
+    for key in options:
+        if key not in accepted:
+            takes = f"it takes {', '.join(sorted(accepted))}" if accepted else "it takes none"
+            raise InputError(f"the {name!r} network has no option {key!r}; {takes}")
+    layout = builder(**options)
+    share = layout.clutter if clutter is None else share
+    if share > 0 and layout.floor is None and not layout.boxes:
+        layout = _on_floor(layout, share)
+    tubes = [_Tube.of(b) for b in layout.branches]
+    patches = [_lateral(i, b) for i, b in enumerate(layout.branches)]
+    patches += [_cap(i, b, end) for i, b in enumerate(layout.branches) for end in (0, 1) if b.ends[end] is not None]
+    n_clutter = int(round(share * n))
+    tube_part = _sample_union(patches, n - n_clutter, rng, tubes)
+    clutter_part = _sample_union(_faces(layout.floor, layout.boxes), n_clutter, rng, tubes)
+    points, normals, label, t = (np.concatenate(pair) for pair in zip(tube_part, clutter_part))
+    scale = np.full(n, np.median([float(np.mean(b.radius(np.linspace(0, 1, 64)))) for b in layout.branches]))
+    for b, branch in enumerate(layout.branches):
+        mine = label == b
+        scale[mine] = branch.radius(t[mine])
+    points = points + (rng.uniform(-1.0, 1.0, n) * noise * scale)[:, None] * normals
+    order = rng.permutation(n)
+    return SyntheticNetwork(name, points[order], normals[order], label[order], layout.branches,
+                            np.asarray(layout.junctions, float).reshape(-1, 3), noise)

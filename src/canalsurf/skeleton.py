@@ -1,0 +1,348 @@
+"""Stage 4a: the thin point set as a skeleton graph -- branches between junctions and ends.
+
+The paper orders the thin set of one tube by linking closest points.  A scan of a network (a tree, a
+vessel, a plant's pipe runs) thins to several curves that meet at junctions, and to separate curves
+for tubes that do not touch.  Here the thin set is averaged on a voxel grid, its k-nearest-neighbour
+graph reduced to a minimum spanning forest, and links much longer than both the typical link and the
+voxel size cut (stray points, gaps between separate tubes).  In each tree:
+
+* **spurs** -- short side paths from a node where three or more ways meet to a leaf, left by the
+  thickness of the thin set where tubes meet or end -- are pruned: shorter than ``SPUR_RADII`` local
+  radii, or standing for fewer than ``MIN_BRANCH_POINTS`` thin points;
+* nodes where three or more ways meet and which lie within ``JUNCTION_RADII`` local radii of each
+  other along the tree are one **junction**;
+* the paths between junctions and ends are the **branches**.  A tree that is a single path whose ends
+  are no farther apart than a kept link is a closed loop (the tree had to break it somewhere).
+
+Trees that stand for too few points or are shorter than a radius are left out (stray points).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+from .constants import ORDER_CUT_LINKS, ORDER_CUT_SPACINGS
+from .errors import ReconstructionError
+from .thin import voxel_average
+
+__all__ = ["Skeleton", "SkeletonBranch", "skeletonize"]
+
+#: Neighbours per node of the graph the spanning tree is taken from.
+GRAPH_NEIGHBOURS = 8
+#: Links longer than this share of the sum of their two nodes' radii join separate tubes: cut.
+SEPARATE_RADII = 0.9
+#: A closed curve must be at least this many typical links long (fewer cannot make a loop).
+MIN_LOOP_LINKS = 12
+#: A leaf path from a junction shorter than this many local radii is a spur: where tubes meet, the
+#: thin set is as thick as the smear of the junction, about one radius of the larger tube.
+SPUR_RADII = 1.5
+#: Junction nodes closer than this many local radii along the tree are one junction (a noisy
+#: junction splits into two or three nearby ones in a spanning tree).
+JUNCTION_RADII = 1.0
+#: A branch must stand for at least this many thin points (fewer: stray points that crowded).
+MIN_BRANCH_POINTS = 20
+#: A tree shorter than this many local radii is no tube (a blob of stray points).
+MIN_TREE_RADII = 1.0
+
+
+@dataclass
+class SkeletonBranch:
+    """One branch of the skeleton as an ordered polyline.
+
+    Attributes
+    ----------
+    points : ndarray, shape (K, 3)
+        Vertices along the branch, from its first end to its last.
+    weights : ndarray, shape (K,)
+        Thin points represented by each vertex.
+    radius : ndarray, shape (K,)
+        Mean distance of the represented input points from their thin images (the paper's r_i).
+    ends : tuple of (int or None, int or None)
+        Junction index at the first and at the last vertex; ``None`` for an open end.
+    closed : bool
+        The branch is a loop (no ends).
+    """
+
+    points: np.ndarray
+    weights: np.ndarray
+    radius: np.ndarray
+    ends: tuple
+    closed: bool = False
+
+    @property
+    def length(self) -> float:
+        """Length of the polyline."""
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+
+@dataclass
+class Skeleton:
+    """Branches and junctions of a thin point set.
+
+    Attributes
+    ----------
+    branches : list of SkeletonBranch
+    junctions : ndarray, shape (J, 3)
+        Junction points (the mean of the graph nodes merged into each).
+    link : float
+        Median link length of the spanning forest (its sampling step).
+    """
+
+    branches: list
+    junctions: np.ndarray
+    link: float
+
+
+def _spanning_forest(nodes: np.ndarray, spacing: float, node_r: np.ndarray) -> tuple:
+    """Minimum spanning forest of the k-NN graph with long links cut; (symmetric CSR, median link, cut).
+
+    A link is cut when it is much longer than the typical link and the voxel size (stray points), or
+    when it is longer than ``SEPARATE_RADII`` times the sum of its nodes' radii: the spines of two
+    tubes that do not meet lie at least that sum apart, while gaps along one tube's thin set (a
+    sparse scan of a long, thin tube) are about one radius.
+    """
+    k = min(GRAPH_NEIGHBOURS + 1, len(nodes))
+    dist, idx = cKDTree(nodes).query(nodes, k=k)
+    rows = np.repeat(np.arange(len(nodes)), k - 1)
+    cols, d = idx[:, 1:].ravel(), dist[:, 1:].ravel()
+    ok = d > 0
+    graph = coo_matrix((d[ok], (rows[ok], cols[ok])), shape=(len(nodes),) * 2).tocsr()
+    tree = minimum_spanning_tree(graph.maximum(graph.T)).tocoo()
+    link = float(np.median(tree.data))
+    # A sparse thin set (a long, thin tube) has gaps of a few voxels that are no break in the curve.
+    cut = max(ORDER_CUT_LINKS * link, ORDER_CUT_SPACINGS * spacing)
+    separate = tree.data > SEPARATE_RADII * (node_r[tree.row] + node_r[tree.col])
+    keep = (tree.data <= cut) & ~separate
+    forest = coo_matrix((tree.data[keep], (tree.row[keep], tree.col[keep])), shape=tree.shape).tocsr()
+    return (forest + forest.T).tocsr(), link, cut
+
+
+class _Tree:
+    """Adjacency of a spanning forest whose nodes can be removed (pruning)."""
+
+    def __init__(self, graph):
+        self.indptr, self.indices = graph.indptr, graph.indices
+        self.alive = np.ones(graph.shape[0], bool)
+
+    def neighbours(self, u: int) -> list:
+        nbr = self.indices[self.indptr[u]:self.indptr[u + 1]]
+        return [int(v) for v in nbr if self.alive[v]]
+
+    def degree(self) -> np.ndarray:
+        counted = np.concatenate([[0], np.cumsum(self.alive[self.indices])])
+        deg = counted[self.indptr[1:]] - counted[self.indptr[:-1]]
+        return np.where(self.alive, deg, 0)
+
+    def segments(self) -> list:
+        """Paths between nodes of degree other than 2 (each once), as lists of node indices."""
+        deg = self.degree()
+        seen, out = set(), []
+        for u in np.flatnonzero(self.alive & (deg != 2)):
+            u = int(u)
+            for v in self.neighbours(u):
+                if (u, v) in seen:
+                    continue
+                path = [u, v]
+                while deg[path[-1]] == 2:
+                    a, b = self.neighbours(path[-1])
+                    path.append(a if a != path[-2] else b)
+                seen.add((path[-1], path[-2]))
+                out.append(path)
+        return out
+
+
+def _length(nodes: np.ndarray, path) -> float:
+    return float(np.linalg.norm(np.diff(nodes[path], axis=0), axis=1).sum())
+
+
+def _prune_spurs(tree: _Tree, nodes, mass, node_r) -> None:
+    """Remove leaf paths from junctions that are too short or too light, until none is left."""
+    while True:
+        deg = tree.degree()
+        removed = False
+        for path in tree.segments():
+            if deg[path[0]] == 1 and deg[path[-1]] >= 3:
+                path = path[::-1]
+            if not (deg[path[0]] >= 3 and deg[path[-1]] == 1):
+                continue
+            local = max(float(node_r[path[0]]), float(np.median(node_r[path])))
+            if _length(nodes, path) < SPUR_RADII * local or mass[path[1:]].sum() < MIN_BRANCH_POINTS:
+                tree.alive[path[1:]] = False
+                removed = True
+        if not removed:
+            return
+
+
+def _junction_clusters(tree: _Tree, segments, nodes, node_r) -> dict:
+    """Map each junction node to its junction index, merging junctions close along the tree."""
+    deg = tree.degree()
+    hubs = [int(u) for u in np.flatnonzero(deg >= 3)]
+    parent = {u: u for u in hubs}
+
+    def find(u):
+        while parent[u] != u:
+            parent[u] = parent[parent[u]]
+            u = parent[u]
+        return u
+
+    for path in segments:
+        a, b = path[0], path[-1]
+        if a in parent and b in parent and a != b:
+            local = max(float(node_r[a]), float(node_r[b]))
+            if _length(nodes, path) < JUNCTION_RADII * local:
+                parent[find(a)] = find(b)
+    roots = sorted({find(u) for u in hubs})
+    index = {r: i for i, r in enumerate(roots)}
+    return {u: index[find(u)] for u in hubs}
+
+
+def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing: float) -> Skeleton:
+    """The skeleton graph of a thin, curve-like cloud.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        The thin set S-tilde.
+    radius : ndarray, shape (N,)
+        Distance of each thin point's input point from it (the paper's r_i): the local tube radius,
+        which sets the length of a spur and of a junction.
+    spacing : float
+        Voxel size the set is averaged on first: about half the MLS radius H, so a vertex stands for a
+        short piece of curve and noise across the curve is averaged away.
+
+    Returns
+    -------
+    Skeleton
+
+    Raises
+    ------
+    ReconstructionError
+        If no curve is left: the set collapsed to a point, or holds no tree long enough for a tube.
+    """
+    nodes, mass, label = voxel_average(points, spacing)
+    if len(nodes) < 4:
+        raise ReconstructionError("the shrunk cloud collapsed to a point, not a curve — the input is not a tube")
+    node_r = np.bincount(label, radius, len(nodes)) / mass
+    graph, link, cut = _spanning_forest(nodes, spacing, node_r)
+    tree = _Tree(graph)
+    _prune_spurs(tree, nodes, mass, node_r)
+    segments = tree.segments()
+    junction_of = _junction_clusters(tree, segments, nodes, node_r)
+
+    n_parts, part = connected_components(graph, directed=False)
+    part_mass = np.bincount(part, mass * tree.alive, n_parts)
+    raw = []
+    for path in segments:
+        a, b = path[0], path[-1]
+        ja, jb = junction_of.get(a), junction_of.get(b)
+        if ja is not None and ja == jb and _length(nodes, path) < JUNCTION_RADII * 2 * node_r[path].max():
+            continue  # inside one junction
+        raw.append((np.array(path), ja, jb))
+    # Leave out trees that are too light or too short for a tube (stray points that crowded).
+    kept = []
+    for path, ja, jb in raw:
+        p = part[path[0]]
+        tree_len = sum(_length(nodes, q) for q, _, _ in raw if part[q[0]] == p)
+        if part_mass[p] < MIN_BRANCH_POINTS or tree_len < MIN_TREE_RADII * np.median(node_r[path]):
+            continue
+        kept.append((path, ja, jb))
+    if not kept:
+        raise ReconstructionError("the thin point set has no long curve in it — the input is not a tube")
+
+    # Junction indices renumbered to those still used; points from pruned nodes weigh on the
+    # nearest kept vertex so no thin point is lost -- but not those of trees left out (strays).
+    used = sorted({j for _, ja, jb in kept for j in (ja, jb) if j is not None})
+    renumber = {j: i for i, j in enumerate(used)}
+    hubs_of = {}
+    for u, j in junction_of.items():
+        hubs_of.setdefault(j, []).append(u)
+    junctions = np.array([nodes[hubs_of[j]].mean(axis=0) for j in used]).reshape(-1, 3)
+    vertices = np.concatenate([path for path, _, _ in kept])
+    owner = np.repeat(np.arange(len(kept)), [len(p) for p, _, _ in kept])
+    members = np.flatnonzero(np.isin(part, part[vertices]))
+    near = cKDTree(nodes[vertices]).query(nodes[members])[1]
+    weight = np.bincount(near, mass[members], len(vertices))
+    rsum = np.bincount(near, (mass * node_r)[members], len(vertices))
+    branches = []
+    for b, (path, ja, jb) in enumerate(kept):
+        sel = owner == b
+        w = weight[sel]
+        r = np.where(w > 0, rsum[sel] / np.maximum(w, 1e-300), node_r[path])
+        loop = (ja is None and jb is None and len(path) >= MIN_LOOP_LINKS
+                and np.linalg.norm(nodes[path[0]] - nodes[path[-1]]) <= cut)
+        ends = (None, None) if loop else (None if ja is None else renumber[ja],
+                                          None if jb is None else renumber[jb])
+        branches.append(SkeletonBranch(nodes[path], np.maximum(w, 0.0), r, ends, bool(loop)))
+    return Skeleton(branches, junctions, link)
+
+
+
+def _reversed(b: SkeletonBranch) -> SkeletonBranch:
+    return SkeletonBranch(b.points[::-1], b.weights[::-1], b.radius[::-1], b.ends[::-1], b.closed)
+
+
+def _joined(a: SkeletonBranch, c: SkeletonBranch) -> SkeletonBranch:
+    """``a`` (ending at a junction) followed by ``c`` (starting there) as one branch.
+
+    Where both end on the same graph node, that vertex is kept once, with the weight both copies carry
+    (the node's points weigh on only one of them); where they end on different nodes of a merged
+    junction, both vertices are kept.  Either way no thin point is lost.
+    """
+    if not np.array_equal(a.points[-1], c.points[0]):
+        return SkeletonBranch(np.vstack([a.points, c.points]), np.r_[a.weights, c.weights],
+                              np.r_[a.radius, c.radius], (a.ends[0], c.ends[1]))
+    w = a.weights[-1] + c.weights[0]
+    r = (a.weights[-1] * a.radius[-1] + c.weights[0] * c.radius[0]) / w if w > 0 else a.radius[-1]
+    return SkeletonBranch(np.vstack([a.points, c.points[1:]]), np.r_[a.weights[:-1], w, c.weights[1:]],
+                          np.r_[a.radius[:-1], r, c.radius[1:]], (a.ends[0], c.ends[1]))
+
+
+def without_branches(skeleton: Skeleton, drop) -> tuple[Skeleton, list]:
+    """The skeleton less the branches ``drop`` (indices), with the junctions they leave repaired.
+
+    A junction left with two branch ends joins those branches into one; with one end it becomes an
+    open end of that branch; with none it disappears.
+
+    Returns
+    -------
+    Skeleton
+    origin : list of int or None
+        For each new branch, the index of the old branch it is unchanged from, or ``None``.
+    """
+    drop = {int(d) for d in drop}
+    live = [(b, i) for i, b in enumerate(skeleton.branches) if i not in drop]
+    while True:
+        ends_at = {}
+        for n, (b, _) in enumerate(live):
+            for e, j in enumerate(b.ends):
+                if j is not None:
+                    ends_at.setdefault(j, []).append((n, e))
+        lonely = next((j for j, m in ends_at.items() if len(m) == 1), None)
+        pair = next((j for j, m in ends_at.items() if len(m) == 2 and m[0][0] != m[1][0]), None)
+        if lonely is not None:
+            (n, e), = ends_at[lonely]
+            b, _ = live[n]
+            ends = list(b.ends)
+            ends[e] = None
+            live[n] = (SkeletonBranch(b.points, b.weights, b.radius, tuple(ends), b.closed), None)
+        elif pair is not None:
+            (n, en), (m, em) = ends_at[pair]
+            a, c = live[n][0], live[m][0]
+            a = _reversed(a) if en == 0 else a  # a now ends at the junction ...
+            c = _reversed(c) if em == 1 else c  # ... and c starts there
+            joined = _joined(a, c)
+            live = [x for k, x in enumerate(live) if k not in (n, m)] + [(joined, None)]
+        else:
+            break
+    used = sorted({j for b, _ in live for j in b.ends if j is not None})
+    renumber = {j: n for n, j in enumerate(used)}
+    branches = [SkeletonBranch(b.points, b.weights, b.radius,
+                               tuple(None if j is None else renumber[j] for j in b.ends), b.closed)
+                for b, _ in live]
+    junctions = skeleton.junctions[used] if used else np.empty((0, 3))
+    return Skeleton(branches, junctions, skeleton.link), [i for _, i in live]

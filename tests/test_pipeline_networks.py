@@ -1,0 +1,106 @@
+"""Whole scans, not one tube: networks, several tubes and clutter, against their ground truth.
+
+The bar (no parameters, normals estimated, 30,000 points, 2 % noise, every seed):
+
+* the right number of branches and junctions, the right branches meeting at each junction;
+* every branch, away from junctions (beyond 2.5 of its radii): spine mean <= 2 % of its radius, radius
+  mean error <= 2 %, >= 95 % of its true spine within half a radius of the model;
+* every junction within half the largest radius meeting there;
+* >= 95 % of the clutter points labelled -1 and >= 95 % of the tube points on their right branch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import canalsurf
+from canalsurf.metrics import compare_network
+from canalsurf.synth import make_network
+
+#: Networks and the seeds each is reconstructed on (benchmarks/networks.py runs more).
+NETWORKS = ("y-vessel", "t-junction", "tree", "rack", "crossing", "floor-clutter", "scene")
+SEEDS = (11, 12)
+N_POINTS = 30_000
+NOISE = 0.02
+SPINE_MEAN, RADIUS_MEAN, COVERED = 0.02, 0.02, 0.95
+JUNCTION_RADII = 0.5
+LABELS_RIGHT = 0.95
+
+
+@pytest.fixture(scope="module", params=[(name, seed) for name in NETWORKS for seed in SEEDS],
+                ids=lambda p: f"{p[0]}-{p[1]}")
+def case(request):
+    name, seed = request.param
+    truth = make_network(name, n=N_POINTS, noise=NOISE, rng=seed)
+    network = canalsurf.reconstruct(truth.points)
+    return truth, network, compare_network(network, truth)
+
+
+def test_branches_and_junctions_are_the_true_ones(case):
+    truth, network, c = case
+    assert len(network.branches) == len(truth.branches)
+    assert len(network.junctions) == len(truth.junctions)
+    assert c["one_to_one"], c["matched"]
+    assert len(network.components) == len(truth.components)
+    for j in c["junctions"]:
+        assert j["same_branches"]
+        assert j["distance"] <= JUNCTION_RADII * j["largest_radius"], j
+
+
+def test_every_branch_meets_the_accuracy_bar(case):
+    truth, network, c = case
+    for i, b in enumerate(c["branches"]):
+        assert b["spine_mean"] <= SPINE_MEAN, (i, b)
+        assert b["radius_mean"] <= RADIUS_MEAN, (i, b)
+        assert b["covered"] >= COVERED, (i, b)
+
+
+def test_points_are_labelled_with_their_branch_or_as_clutter(case):
+    truth, network, c = case
+    assert c["clutter_right"] >= LABELS_RIGHT
+    assert c["tube_right"] >= LABELS_RIGHT
+    share = float(np.mean(truth.label < 0))
+    assert network.diagnostics["no_tube_share"] == pytest.approx(share, abs=0.03)
+
+
+def test_branch_ends_and_junctions_agree(case):
+    """Each junction lists exactly the branch ends that name it, and those ends lie on its point."""
+    _, network, _ = case
+    for j in network.junctions:
+        for bid, end in j.ends:
+            branch = network.branches[bid]
+            assert branch.ends[end] == j.id
+            r = float(branch.radius(float(end)))
+            assert np.linalg.norm(branch.spine(float(end)) - j.point) <= 1e-3 * r
+    named = sorted((b.id, e) for b in network.branches for e, j in enumerate(b.ends) if j is not None)
+    listed = sorted(end for j in network.junctions for end in j.ends)
+    assert named == listed
+
+
+def test_a_network_is_not_refused_for_its_clutter():
+    """Clutter is left out (labelled -1), not a reason to refuse the tube in it."""
+    truth = make_network("floor-clutter", n=20_000, clutter=0.5, rng=3)
+    network = canalsurf.reconstruct(truth.points)
+    assert len(network.branches) == 1
+    assert network.diagnostics["no_tube_share"] == pytest.approx(0.5, abs=0.05)
+
+
+def _box_surface(n: int, rng) -> np.ndarray:
+    """Points on the surface of the cube [-1, 1]^3 (equal area per face), 1 % noise."""
+    face = rng.integers(0, 6, n)
+    uv = rng.uniform(-1.0, 1.0, (n, 2))
+    points = np.empty((n, 3))
+    axis, sign = face // 2, np.where(face % 2, 1.0, -1.0)
+    for a in range(3):
+        others = [b for b in range(3) if b != a]
+        sel = axis == a
+        points[sel, a] = sign[sel]
+        points[np.ix_(sel, others)] = uv[sel]
+    return points + rng.normal(0.0, 0.01, (n, 3))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_box_is_not_a_tube(seed):
+    with pytest.raises(canalsurf.ReconstructionError, match="not a tube|no part of the cloud is a tube"):
+        canalsurf.reconstruct(_box_surface(5000, np.random.default_rng(seed)))

@@ -1,0 +1,505 @@
+"""Tests of canalsurf.skeleton: a thin cloud becomes branches between junctions that follow the true curves.
+
+A single curve is one branch (ordered along the curve, open or closed); networks of lines (a T, a Y, a
+four-way star) are branches meeting at one junction; separate lines are separate branches; short spurs
+are pruned.  Every branch is checked against the true curve it came from with tolerances in voxels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from canalsurf.errors import ReconstructionError
+from canalsurf.skeleton import (MIN_BRANCH_POINTS, SEPARATE_RADII, SPUR_RADII, Skeleton, SkeletonBranch,
+                                skeletonize, without_branches)
+
+SEED = 3
+N = 2000
+#: Voxel size of every skeleton here.
+SPACING = 0.05
+#: Local tube radius of the thin points: 5 voxels, about what the pipeline has (voxel = 0.3 r).
+RADIUS = 0.25
+#: Thin points per unit length of the hand-made networks (about the density of the single curve).
+DENSITY = 300
+#: Noise of a thin set (as after MLS: well below the voxel size).
+THIN_SIGMA = SPACING / 25
+
+
+def _curve(t):
+    """An open space curve of length about 6.8 with bends in two planes."""
+    return np.column_stack([6 * t, 1.5 * np.sin(3 * t), 0.5 * np.cos(2 * t)])
+
+
+def _radii(points, value=RADIUS):
+    return np.full(len(points), value)
+
+
+def _single(points, radius=RADIUS) -> SkeletonBranch:
+    """The one branch of the skeleton of ``points`` (fails unless there is exactly one, with no junction)."""
+    skel = skeletonize(points, _radii(points, radius), spacing=SPACING)
+    assert len(skel.branches) == 1 and skel.junctions.shape == (0, 3)
+    return skel.branches[0]
+
+
+def _arc_positions(vertices, curve, curve_distance):
+    """Arc length of the nearest true-curve point of each vertex (oriented to increase), and distances."""
+    dist, s = curve_distance(vertices, curve)
+    if s[-1] < s[0]:
+        s = s[::-1]
+    return s, dist
+
+
+def _assert_follows(s, back=SPACING / 2, displacement=2):
+    """Vertices advance along the curve: where a cross-section splits into two voxels side by side the
+    path may visit them in either order, so allow back-steps of up to half a voxel and let no vertex sit
+    more than ``displacement`` places from its rank along the curve."""
+    assert np.diff(s).min() >= -back
+    rank = np.argsort(np.argsort(s, kind="stable"), kind="stable")
+    assert np.abs(rank - np.arange(len(s))).max() <= displacement
+
+
+def _shuffled_curve(seed, sigma, n=N):
+    rng = np.random.default_rng(seed)
+    points = _curve(rng.uniform(0.0, 1.0, n)) + rng.normal(scale=sigma, size=(n, 3))
+    return points[rng.permutation(n)], rng
+
+
+def _segment(rng, a, b, sigma=THIN_SIGMA, density=DENSITY):
+    """Thin points scattered uniformly along the segment from ``a`` to ``b``, with Gaussian noise."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    n = int(round(density * np.linalg.norm(b - a)))
+    t = rng.uniform(0.0, 1.0, n)
+    return a + t[:, None] * (b - a) + rng.normal(scale=sigma, size=(n, 3))
+
+
+def _segment_distance(points, a, b):
+    """Brute-force distance of each point to the segment from ``a`` to ``b``, and the position along it."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = b - a
+    t = np.clip((points - a) @ d / (d @ d), 0.0, 1.0)
+    return np.linalg.norm(points - (a + t[:, None] * d), axis=1), t * np.linalg.norm(d)
+
+
+def _star(rng, centre, tips, sigma=THIN_SIGMA):
+    """Thin points along segments from ``centre`` to each tip, shuffled."""
+    points = np.vstack([_segment(rng, centre, tip, sigma) for tip in tips])
+    return points[rng.permutation(len(points))]
+
+
+def _assert_star(skel: Skeleton, centre, tips):
+    """The skeleton is one junction at ``centre`` and one branch per arm to each tip.
+
+    Each branch: every vertex within a voxel of its arm (the brute-force distance to the segment),
+    advancing along it, its free end within two voxels of the tip and open (``None``), its other end
+    listing junction 0 and lying within two voxels of the true meeting point; the arms are matched to
+    the branches one to one.
+    """
+    centre = np.asarray(centre, float)
+    assert len(skel.branches) == len(tips)
+    assert skel.junctions.shape == (1, 3)
+    assert np.linalg.norm(skel.junctions[0] - centre) <= 2 * SPACING
+    matched = set()
+    for branch in skel.branches:
+        assert branch.closed is False
+        assert sorted(branch.ends, key=lambda e: e is None) == [0, None]
+        inner = 0 if branch.ends[0] == 0 else -1
+        free = -1 - inner
+        arm = int(np.argmin([np.linalg.norm(branch.points[free] - tip) for tip in tips]))
+        matched.add(arm)
+        dist, along = _segment_distance(branch.points, centre, tips[arm])
+        assert dist.max() <= SPACING
+        if inner == -1:
+            along = along[::-1]
+        _assert_follows(along)
+        assert np.linalg.norm(branch.points[free] - tips[arm]) <= 2 * SPACING
+        assert np.linalg.norm(branch.points[inner] - centre) <= 2 * SPACING
+    assert matched == set(range(len(tips)))
+
+
+# --------------------------------------------------------------------------------------------------
+# a single curve: one branch
+
+
+@pytest.mark.parametrize("seed", [SEED, SEED + 1, SEED + 2])
+def test_thin_shuffled_curve_is_ordered_end_to_end(seed, curve_distance, dense_curve):
+    """A thin set (noise well below the voxel spacing, as after MLS) is one open branch, ordered exactly."""
+    points, _ = _shuffled_curve(seed, sigma=THIN_SIGMA)
+    branch = _single(points)
+    assert branch.closed is False and branch.ends == (None, None)
+    s, dist = _arc_positions(branch.points, _curve, curve_distance)
+    _assert_follows(s)
+    assert np.mean(np.diff(s) > 0) >= 0.95  # nearly every step goes forward
+    length = dense_curve(_curve)[2][-1]
+    assert s[0] <= 2 * SPACING and s[-1] >= length - 2 * SPACING  # runs from end to end
+    assert dist.max() <= SPACING
+    # No thin point is lost: the vertex weights are the points they stand for.
+    assert branch.weights.sum() == N
+    assert branch.weights.min() >= 1
+    steps = np.linalg.norm(np.diff(branch.points, axis=0), axis=1)
+    assert steps.max() <= 3 * SPACING  # no jumps
+    assert branch.length == pytest.approx(steps.sum())
+    # The radius of a vertex is the mean radius of the points it stands for.
+    np.testing.assert_allclose(branch.radius, RADIUS, rtol=1e-12)
+
+
+def test_vertex_radius_is_the_weighted_mean_of_its_points():
+    """``radius`` is the mean of the thin points' radii each vertex stands for: on a curve whose radius
+    grows linearly along x, each vertex's radius is the radius at its own position to within a voxel's
+    worth of the slope, and the weighted mean over the branch is the mean over all points."""
+    points, _ = _shuffled_curve(SEED, sigma=THIN_SIGMA)
+    r = 0.2 + 0.01 * points[:, 0]  # 0.2 ... 0.26 along the curve
+    skel = skeletonize(points, r, spacing=SPACING)
+    (branch,) = skel.branches
+    np.testing.assert_allclose(branch.radius, 0.2 + 0.01 * branch.points[:, 0], atol=0.01 * 2 * SPACING)
+    assert np.average(branch.radius, weights=branch.weights) == pytest.approx(r.mean(), rel=1e-12)
+
+
+@pytest.mark.parametrize("strays", [False, True])
+def test_link_is_the_sampling_step(strays):
+    """``Skeleton.link`` is documented as the median link of the spanning forest, its sampling step.  On
+    a thin curve the forest's links are the steps between neighbouring voxels, so it must equal the
+    median polyline step.  Strays (5 % of the points, but a third of the voxels) add long links to the
+    tree and may raise the median somewhat, not double it."""
+    points, rng = _shuffled_curve(SEED, sigma=THIN_SIGMA)
+    if strays:
+        points = np.vstack([points, rng.uniform(-5.0, 10.0, size=(N // 20, 3))])
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    steps = np.linalg.norm(np.diff(skel.branches[0].points, axis=0), axis=1)
+    assert skel.link == pytest.approx(np.median(steps), rel=0.5 if strays else 0.1)
+
+
+def test_thicker_cloud_is_ordered_up_to_a_voxel(curve_distance):
+    """Noise of a fifth of the spacing: voxels lie side by side across the curve and the path may step
+    back, but never by more than one voxel; the side steps are not taken for branches."""
+    points, _ = _shuffled_curve(SEED, sigma=SPACING / 5)
+    branch = _single(points)
+    assert branch.closed is False
+    s, dist = _arc_positions(branch.points, _curve, curve_distance)
+    _assert_follows(s, back=SPACING, displacement=4)
+    assert s[-1] - s[0] >= 6.0
+    assert dist.max() <= 2 * SPACING
+    assert branch.weights.sum() == N
+
+
+def test_noisy_circle_is_closed():
+    rng = np.random.default_rng(SEED)
+    a = rng.uniform(0.0, 2 * np.pi, N)
+    points = np.column_stack([3 * np.cos(a), 3 * np.sin(a), np.zeros(N)]) + rng.normal(scale=0.002,
+                                                                                      size=(N, 3))
+    branch = _single(points)
+    assert branch.closed is True
+    assert branch.ends == (None, None)
+    angle = np.unwrap(np.arctan2(branch.points[:, 1], branch.points[:, 0]))
+    step = np.diff(angle)
+    assert np.all(step > 0) or np.all(step < 0)
+    assert np.ptp(angle) >= 2 * np.pi - 4 * SPACING / 3  # all the way round but the closing link
+    assert np.abs(np.linalg.norm(branch.points[:, :2], axis=1) - 3).max() <= SPACING
+    assert branch.weights.sum() == N
+
+
+def test_open_arc_is_not_closed():
+    """300 degrees of a circle: the ends are 3 apart, far more than a link."""
+    rng = np.random.default_rng(SEED)
+    a = rng.uniform(0.0, np.radians(300), N)
+    points = np.column_stack([3 * np.cos(a), 3 * np.sin(a), np.zeros(N)])
+    branch = _single(points)
+    assert branch.closed is False
+    angle = np.unwrap(np.arctan2(branch.points[:, 1], branch.points[:, 0]))
+    assert np.ptp(angle) >= np.radians(300) - 4 * SPACING / 3
+
+
+def test_stray_points_are_excluded(curve_distance):
+    """5 % of the points scattered far off the curve: the branch follows the curve, and the strays are
+    left out -- of the vertices and of the weights, which count the curve's points only."""
+    points, rng = _shuffled_curve(SEED, sigma=THIN_SIGMA)
+    m = N // 20
+    strays = rng.uniform(-5.0, 10.0, size=(m, 3)) + [0.0, 0.0, 5.0]
+    mixed = np.vstack([points, strays])[rng.permutation(N + m)]
+    branch = _single(mixed)
+    assert branch.closed is False
+    s, dist = _arc_positions(branch.points, _curve, curve_distance)
+    _assert_follows(s)
+    assert dist.max() <= SPACING  # no vertex on a stray
+    assert s[-1] - s[0] >= 6.5
+    # Only strays that happen to fall within a voxel or so of the curve can join it.
+    near = curve_distance(strays, _curve)[0] <= 2 * SPACING
+    assert N <= branch.weights.sum() <= N + near.sum()
+
+
+def test_same_input_same_output():
+    points, _ = _shuffled_curve(SEED, sigma=0.005)
+    a = skeletonize(points, _radii(points), spacing=SPACING)
+    b = skeletonize(points.copy(), _radii(points), spacing=SPACING)
+    assert len(a.branches) == len(b.branches) == 1
+    np.testing.assert_array_equal(a.branches[0].points, b.branches[0].points)
+    np.testing.assert_array_equal(a.branches[0].weights, b.branches[0].weights)
+    np.testing.assert_array_equal(a.branches[0].radius, b.branches[0].radius)
+    assert a.link == b.link
+
+
+def test_input_is_not_changed():
+    points, _ = _shuffled_curve(SEED, sigma=THIN_SIGMA)
+    radius = _radii(points)
+    before = points.copy(), radius.copy()
+    skeletonize(points, radius, spacing=SPACING)
+    np.testing.assert_array_equal(points, before[0])
+    np.testing.assert_array_equal(radius, before[1])
+
+
+def test_a_blob_is_not_a_curve():
+    rng = np.random.default_rng(SEED)
+    blob = rng.normal(scale=0.01, size=(200, 3))
+    with pytest.raises(ReconstructionError, match=r"^the shrunk cloud collapsed to a point, not a curve — "
+                                                  r"the input is not a tube$"):
+        skeletonize(blob, _radii(blob), spacing=1.0)
+
+
+def test_only_strays_is_not_a_curve():
+    """Points scattered so thinly that no voxel has a neighbour within the cut: no tree is a tube."""
+    rng = np.random.default_rng(SEED)
+    scattered = rng.uniform(0.0, 100.0, size=(15, 3))
+    with pytest.raises(ReconstructionError, match=r"^the thin point set has no long curve in it — "
+                                                  r"the input is not a tube$"):
+        skeletonize(scattered, _radii(scattered), spacing=SPACING)
+
+
+# --------------------------------------------------------------------------------------------------
+# networks: junctions, separate tubes, spurs
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_t_is_three_branches_at_one_junction(seed):
+    """A line and a perpendicular line from its middle: three branches, each from the junction (within
+    two voxels of the meeting point) to its own end, and every thin point weighs on some branch."""
+    rng = np.random.default_rng(seed)
+    tips = [np.array([-3.0, 0.0, 0.0]), np.array([3.0, 0.0, 0.0]), np.array([0.0, 3.0, 0.0])]
+    points = np.vstack([_segment(rng, tips[0], tips[1]), _segment(rng, [0.0, 0.0, 0.0], tips[2])])
+    points = points[rng.permutation(len(points))]
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    _assert_star(skel, [0.0, 0.0, 0.0], tips)
+    assert sum(b.weights.sum() for b in skel.branches) == len(points)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_y_is_three_branches_at_one_junction(seed):
+    """Three arms 120 degrees apart, tilted out of the coordinate planes and moved off the origin."""
+    rng = np.random.default_rng(seed)
+    centre = np.array([1.0, -2.0, 0.5])
+    u, v = np.array([1.0, 2.0, 2.0]) / 3, np.array([2.0, 1.0, -2.0]) / 3  # orthonormal
+    tips = [centre + 2.5 * (np.cos(a) * u + np.sin(a) * v) for a in np.radians([90.0, 210.0, 330.0])]
+    points = _star(rng, centre, tips)
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    _assert_star(skel, centre, tips)
+    assert sum(b.weights.sum() for b in skel.branches) == len(points)
+
+
+def test_four_way_star_is_four_branches_at_one_junction():
+    rng = np.random.default_rng(SEED)
+    tips = [2.5 * np.array([np.cos(a), np.sin(a), 0.3 * np.sin(2 * a)]) for a in np.radians([0, 90, 180, 270])]
+    points = _star(rng, np.zeros(3), tips)
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    _assert_star(skel, np.zeros(3), tips)
+
+
+def test_separate_parallel_lines_are_separate_branches():
+    """Two parallel lines 0.2 apart with radius 0.08: farther than ``SEPARATE_RADII`` times the sum of
+    the radii (0.144), yet within the cut for stray links (6 voxels = 0.3), so only the radius rule
+    separates them: two open branches, no junction, each along its own line."""
+    rng = np.random.default_rng(SEED)
+    radius, gap = 0.08, 0.2
+    assert SEPARATE_RADII * 2 * radius < gap < 6 * SPACING
+    lines = [([0.0, 0.0, 0.0], [3.0, 0.0, 0.0]), ([0.0, gap, 0.0], [3.0, gap, 0.0])]
+    points = np.vstack([_segment(rng, a, b) for a, b in lines])
+    skel = skeletonize(points[rng.permutation(len(points))], _radii(points, radius), spacing=SPACING)
+    assert len(skel.branches) == 2
+    assert skel.junctions.shape == (0, 3)
+    on = []
+    for branch in skel.branches:
+        assert branch.ends == (None, None) and branch.closed is False
+        dist = np.array([_segment_distance(branch.points, a, b)[0].max() for a, b in lines])
+        assert dist.min() <= SPACING
+        on.append(int(np.argmin(dist)))
+        a, b = lines[on[-1]]
+        ends = sorted([branch.points[0], branch.points[-1]], key=lambda p: p[0])
+        assert np.linalg.norm(ends[0] - a) <= 2 * SPACING and np.linalg.norm(ends[1] - b) <= 2 * SPACING
+    assert sorted(on) == [0, 1]
+
+
+def test_touching_parallel_lines_are_one_network():
+    """The same two lines with radius 0.25: tubes whose spines are closer than the sum of their radii
+    overlap, so the lines are not separated: they form one connected network, with junctions."""
+    rng = np.random.default_rng(SEED)
+    gap = 0.2
+    assert gap < SEPARATE_RADII * 2 * RADIUS
+    points = np.vstack([_segment(rng, [0.0, 0.0, 0.0], [3.0, 0.0, 0.0]),
+                        _segment(rng, [0.0, gap, 0.0], [3.0, gap, 0.0])])
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    assert len(skel.junctions) >= 1
+    # every branch is joined to the rest through junctions
+    assert all(any(e is not None for e in b.ends) for b in skel.branches)
+
+
+@pytest.mark.parametrize(("radius", "pieces"), [(RADIUS, 1), (0.08, 2)])
+def test_a_gap_of_a_radius_is_no_break(radius, pieces):
+    """A line with a gap of 0.2: about one radius of a 0.25 tube (a sparse stretch of one tube) keeps
+    one branch across it; 2.5 radii of a 0.08 tube (two tubes end to end) cuts it in two.  Both gaps are
+    within the cut for stray links, so the radius decides."""
+    rng = np.random.default_rng(SEED)
+    gap = 0.2
+    points = np.vstack([_segment(rng, [0.0, 0.0, 0.0], [2.0, 0.0, 0.0]),
+                        _segment(rng, [2.0 + gap, 0.0, 0.0], [4.0 + gap, 0.0, 0.0])])
+    skel = skeletonize(points, _radii(points, radius), spacing=SPACING)
+    assert len(skel.branches) == pieces
+    assert skel.junctions.shape == (0, 3)
+    steps = [np.linalg.norm(np.diff(b.points, axis=0), axis=1) for b in skel.branches]
+    if pieces == 1:
+        assert max(s.max() for s in steps) >= gap  # the gap is bridged by one link
+    else:
+        assert max(s.max() for s in steps) <= 3 * SPACING
+    assert sum(b.weights.sum() for b in skel.branches) == len(points)
+
+
+@pytest.mark.parametrize(("length", "n_points"), [
+    (0.8 * SPUR_RADII * RADIUS, None),           # short: pruned however many points it has
+    (1.2 * SPUR_RADII * RADIUS, MIN_BRANCH_POINTS // 2),  # long enough, but too few points
+])
+def test_spurs_are_pruned(length, n_points, curve_distance):
+    """A stub sticking out sideways from the middle of a line, shorter than ``SPUR_RADII`` radii (with
+    more than ``MIN_BRANCH_POINTS`` points), or longer but standing for too few points: one branch along
+    the line, no junction, and the stub's points weigh on it."""
+    rng = np.random.default_rng(SEED)
+    line = _segment(rng, [-3.0, 0.0, 0.0], [3.0, 0.0, 0.0])
+    stub = _segment(rng, [0.0, 0.0, 0.0], [0.0, length, 0.0])
+    if n_points is not None:
+        stub = stub[:n_points]
+    assert n_points is not None or len(stub) > MIN_BRANCH_POINTS
+    points = np.vstack([line, stub])
+    branch = _single(points[rng.permutation(len(points))])
+    assert branch.ends == (None, None) and branch.closed is False
+    dist, along = _segment_distance(branch.points, [-3.0, 0.0, 0.0], [3.0, 0.0, 0.0])
+    assert dist.max() <= SPACING
+    if along[-1] < along[0]:
+        along = along[::-1]
+    _assert_follows(along)
+    assert along[0] <= 2 * SPACING and along[-1] >= 6.0 - 2 * SPACING
+    assert branch.weights.sum() == len(points)
+
+
+def test_a_side_line_longer_than_a_spur_is_kept():
+    """The same stub twice ``SPUR_RADII`` radii long: a branch of its own at a junction on the line."""
+    rng = np.random.default_rng(SEED)
+    length = 2 * SPUR_RADII * RADIUS
+    tips = [np.array([-3.0, 0.0, 0.0]), np.array([3.0, 0.0, 0.0]), np.array([0.0, length, 0.0])]
+    points = np.vstack([_segment(rng, tips[0], tips[1]), _segment(rng, [0.0, 0.0, 0.0], tips[2])])
+    skel = skeletonize(points[rng.permutation(len(points))], _radii(points), spacing=SPACING)
+    _assert_star(skel, [0.0, 0.0, 0.0], tips)
+    side = min(skel.branches, key=lambda b: b.length)
+    assert side.length == pytest.approx(length, abs=2 * SPACING)
+
+
+# --------------------------------------------------------------------------------------------------
+# without_branches
+
+
+def _t_skeleton(seed=SEED):
+    rng = np.random.default_rng(seed)
+    tips = [np.array([-3.0, 0.0, 0.0]), np.array([3.0, 0.0, 0.0]), np.array([0.0, 3.0, 0.0])]
+    points = np.vstack([_segment(rng, tips[0], tips[1]), _segment(rng, [0.0, 0.0, 0.0], tips[2])])
+    points = points[rng.permutation(len(points))]
+    return skeletonize(points, _radii(points), spacing=SPACING), len(points)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
+def test_dropping_the_side_of_a_t_joins_the_halves(seed):
+    """Without the side branch the junction has two ends left: the halves become one open branch from
+    end to end along the line, no junction remains, no thin point of the halves is lost, and the new
+    branch is no unchanged old one (origin ``None``)."""
+    skel, _ = _t_skeleton(seed)
+    side = [i for i, b in enumerate(skel.branches) if b.points[:, 1].max() > 1.0]
+    assert len(side) == 1
+    halves = [b for i, b in enumerate(skel.branches) if i != side[0]]
+    out, origin = without_branches(skel, side)
+    assert origin == [None]
+    assert out.junctions.shape == (0, 3)
+    assert out.link == skel.link
+    (joined,) = out.branches
+    assert joined.ends == (None, None) and joined.closed is False
+    assert len(joined.points) == len(joined.weights) == len(joined.radius)
+    dist, along = _segment_distance(joined.points, [-3.0, 0.0, 0.0], [3.0, 0.0, 0.0])
+    assert dist.max() <= SPACING
+    if along[-1] < along[0]:
+        along = along[::-1]
+    _assert_follows(along)
+    assert along[0] <= 2 * SPACING and along[-1] >= 6.0 - 2 * SPACING
+    assert joined.weights.sum() == sum(b.weights.sum() for b in halves)
+    np.testing.assert_allclose(joined.radius, RADIUS, rtol=1e-12)
+    assert np.linalg.norm(np.diff(joined.points, axis=0), axis=1).max() <= 3 * SPACING
+
+
+def _arms(skel: Skeleton, tips) -> list:
+    """Index of the tip each branch reaches (one to one), by its end nearest to a tip."""
+    arm = [int(np.argmin([min(np.linalg.norm(b.points[[0, -1]] - t, axis=1)) for t in tips]))
+           for b in skel.branches]
+    assert sorted(arm) == list(range(len(tips)))
+    return arm
+
+
+def test_dropping_one_arm_of_a_star_keeps_the_junction():
+    """A four-way star less one arm: the junction keeps the three other ends, and the three branches
+    are the old ones unchanged, which ``origin`` names."""
+    rng = np.random.default_rng(SEED)
+    tips = [2.5 * np.array([np.cos(a), np.sin(a), 0.3 * np.sin(2 * a)]) for a in np.radians([0, 90, 180, 270])]
+    points = _star(rng, np.zeros(3), tips)
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    arm = _arms(skel, tips)
+    for drop in range(4):
+        out, origin = without_branches(skel, [drop])
+        assert origin == [i for i in range(4) if i != drop]
+        np.testing.assert_array_equal(out.junctions, skel.junctions)
+        _assert_star(out, np.zeros(3), [t for i, t in enumerate(tips) if i != arm[drop]])
+        for new, old in zip(out.branches, origin):
+            b = skel.branches[old]
+            np.testing.assert_array_equal(new.points, b.points)
+            np.testing.assert_array_equal(new.weights, b.weights)
+            assert new.ends == b.ends
+
+
+def test_dropping_two_arms_of_a_star_joins_the_rest():
+    rng = np.random.default_rng(SEED)
+    tips = [2.5 * np.array([np.cos(a), np.sin(a), 0.0]) for a in np.radians([0, 90, 180, 270])]
+    points = _star(rng, np.zeros(3), tips)
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    branch_of = {a: i for i, a in enumerate(_arms(skel, tips))}
+    out, origin = without_branches(skel, [branch_of[1], branch_of[3]])  # the y arms: the x line is left
+    assert origin == [None] and out.junctions.shape == (0, 3)
+    (line,) = out.branches
+    assert line.ends == (None, None)
+    assert _segment_distance(line.points, tips[2], tips[0])[0].max() <= SPACING
+    ends = sorted(line.points[[0, -1]], key=lambda p: p[0])
+    assert np.linalg.norm(ends[0] - tips[2]) <= 2 * SPACING and np.linalg.norm(ends[1] - tips[0]) <= 2 * SPACING
+    assert line.weights.sum() == skel.branches[branch_of[0]].weights.sum() + skel.branches[branch_of[2]].weights.sum()
+
+
+def test_dropping_every_branch_at_a_junction_but_one_opens_it():
+    """A junction left with one end becomes an open end of that branch; one with none disappears."""
+    rng = np.random.default_rng(SEED)
+    tips = [2.5 * np.array([np.cos(a), np.sin(a), 0.0]) for a in np.radians([90, 210, 330])]
+    points = _star(rng, np.zeros(3), tips)
+    skel = skeletonize(points, _radii(points), spacing=SPACING)
+    out, origin = without_branches(skel, [0, 1])
+    assert origin == [None]
+    assert out.branches[0].ends == (None, None) and out.junctions.shape == (0, 3)
+    np.testing.assert_array_equal(out.branches[0].points, skel.branches[2].points)
+    out, origin = without_branches(skel, [0, 1, 2])
+    assert out.branches == [] and origin == [] and out.junctions.shape == (0, 3)
+
+
+def test_without_no_branches_is_the_same_skeleton():
+    skel, _ = _t_skeleton()
+    out, origin = without_branches(skel, [])
+    assert origin == [0, 1, 2]
+    np.testing.assert_array_equal(out.junctions, skel.junctions)
+    for new, old in zip(out.branches, skel.branches):
+        np.testing.assert_array_equal(new.points, old.points)
+        assert new.ends == old.ends
