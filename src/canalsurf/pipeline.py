@@ -26,6 +26,7 @@ from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
 from .normals import estimate_normals, point_inward
+from .quality import branch_quality, scan_quality, support_gap
 from .radius import curvature_radius, prefer_canal, principal_curvature
 from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import shrink, shrink_by_concentration
@@ -205,7 +206,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     with timer("junctions"):
         fits, junction_points = _join_at_junctions(fits, skel)
     with timer("residual"):
-        branches, summary = _check_and_describe(scan, fits)
+        branches, summary = _check_and_describe(scan, fits, noise)
     network = _to_input_units(branches, junction_points, fits, scan)
     network.parameters = _reported_parameters(p, scan.scale, k=k, r0=r0, stop=stop, neighbours=neighbours,
                                               refine=refine)
@@ -215,7 +216,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         "points_reached_spine": int(len(kept)), "eq6_radius": float(r_i.mean()) * scan.scale,
         "n_branches": len(network.branches),
         "n_junctions": len(network.junctions), "n_components": len(network.components),
-        **{key: (val * scan.scale if key in ("rms_residual", "inlier_rms_residual", "noise_sigma") else val)
+        **{key: (val * scan.scale if key in ("rms_residual", "inlier_rms_residual", "noise_sigma", "scan_noise")
+                 and val is not None else val)
            for key, val in summary.items()},
         "seconds": dict(timer),
     }
@@ -611,8 +613,9 @@ def _join_at_junctions(fits: list, skel: Skeleton):
 # checks and the result
 
 
-def _check_and_describe(scan: _Scan, fits: list):
-    """Per-branch diagnostics and the scan's: which points lie on a tube, how well, how seen."""
+def _check_and_describe(scan: _Scan, fits: list, noise: float):
+    """Per-branch diagnostics and the scan's: which points lie on a tube, how well, how seen, and the
+    quality each can be trusted with (:mod:`canalsurf.quality`)."""
     branches = []
     for i, fit in enumerate(fits):
         t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
@@ -620,24 +623,34 @@ def _check_and_describe(scan: _Scan, fits: list):
         near = ~stray
         coverage = angular_coverage(fit.points[near], fit.spine, t[near])
         coverage = float(np.median(coverage)) if len(coverage) else float("nan")
-        sigma = robust_sigma(residual)
+        rms = float(np.sqrt(np.mean(residual[near] ** 2))) if near.any() else float("inf")
+        mean_r = float(np.mean(fit.radius(np.linspace(0, 1, 200))))
+        level, reasons = branch_quality(
+            rms=rms, radius=mean_r, noise=noise, coverage=coverage,
+            gap=support_gap(t[near], curve_length(fit.spine), fit.closed),
+            out_of_round=roundness(fit.points[near], fit.spine, t[near], residual[near]))
         branches.append(CanalModel(fit.kind, fit.spine, fit.radius, fit.closed, diagnostics={
-            "n_points": int(len(fit.points)), "eq6_radius": fit.eq6,
-            "inlier_rms_residual": float(np.sqrt(np.mean(residual[near] ** 2))) if near.any() else None,
-            "noise_sigma": sigma, "stray_share": float(stray.mean()), "angular_coverage": coverage,
-            "one_sided": bool(coverage < C.ONE_SIDED_DEGREES),
+            "quality": level, "quality_reasons": reasons,
+            "n_points": int(len(fit.points)), "eq6_radius": fit.eq6, "inlier_rms_residual": rms,
+            "noise_sigma": robust_sigma(residual), "stray_share": float(stray.mean()),
+            "angular_coverage": coverage, "one_sided": bool(coverage < C.ONE_SIDED_DEGREES),
             "spine_segments": fit.segments[0], "radius_segments": fit.segments[1]}, id=i, ends=fit.ends))
     # The scan as a whole, on a seeded sample of at most MAX_RESIDUAL_POINTS points.
     measured = scan.all_pts if scan.draw is None else scan.all_pts[np.sort(scan.draw[: C.MAX_RESIDUAL_POINTS])]
     label, distance = classify_points(measured, branches)
     on = label >= 0
     coverage = [b.diagnostics["angular_coverage"] for b in branches]
+    no_tube = float(1.0 - on.mean())
+    level, reasons = scan_quality([(b.id, b.diagnostics["quality"], b.diagnostics["quality_reasons"])
+                                   for b in branches], no_tube)
     summary = {
+        "quality": level, "quality_reasons": reasons,
         "n_residual_points": int(len(measured)),
-        "no_tube_share": float(1.0 - on.mean()),
+        "no_tube_share": no_tube,
         "rms_residual": float(np.sqrt(np.mean(np.minimum(distance, 1e300) ** 2))),
         "inlier_rms_residual": float(np.sqrt(np.mean(distance[on] ** 2))) if on.any() else None,
         "noise_sigma": robust_sigma(distance[on]) if on.any() else None,
+        "scan_noise": noise,
         "angular_coverage": float(np.nanmedian(coverage)) if np.isfinite(coverage).any() else float("nan"),
     }
     summary["one_sided"] = bool(summary["angular_coverage"] < C.ONE_SIDED_DEGREES)

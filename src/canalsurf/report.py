@@ -378,7 +378,11 @@ def _headline(network: Network, branches: list[_Branch], label: np.ndarray, dist
     coverage, one_sided = _number(d.get("angular_coverage")), d.get("one_sided")
 
     n_j, n_c = len(network.junctions), len(network.components)
-    stats = [
+    quality = d.get("quality")
+    stats = [] if quality is None else [
+        (str(quality), "quality", "; ".join(d.get("quality_reasons") or []) or "no reason for doubt "
+         "(see docs/quality.md)")]
+    stats += [
         (str(len(branches)), "branch" if len(branches) == 1 else "branches", _kinds(branches)),
         (str(n_j), "junction" if n_j == 1 else "junctions", "where branch ends meet"),
         (str(n_c), "separate network" if n_c == 1 else "separate networks", "not touching each other"),

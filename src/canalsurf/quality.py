@@ -1,0 +1,121 @@
+"""Checks: how far a model can be trusted -- ``good``, ``check`` or ``poor``, with the reasons.
+
+Every model canalsurf writes has passed the self-checks of :mod:`canalsurf.pipeline` (a branch that is
+no tube is left out, a scan with no tube is refused).  What passes may still be uncertain: a tube seen
+from one side, with gaps in its points, noisy or out of round.  Each branch gets a quality from what
+its own points show, the scan the worst of its branches' and its own reasons; ``docs/quality.md``
+says what each reason means and what to do about it.
+
+* ``good`` -- no reason for doubt;
+* ``check`` -- usable, but look at the reasons (a one-sided scan, a gap, noise above the scan's);
+* ``poor`` -- the model is a rough guide only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .constants import ONE_SIDED_DEGREES
+
+__all__ = ["LEVELS", "branch_quality", "scan_quality", "support_gap"]
+
+#: Qualities from best to worst.
+LEVELS = ("good", "check", "poor")
+#: Inlier RMS distance from the surface above this share of the radius: ``poor`` (noise of a tenth
+#: of the radius leaves single cross-sections, and so a short tube's radius, that uncertain).
+POOR_RMS_RADII = 0.10
+#: Inlier RMS above this many times the scan's own noise (the points' scatter about their local
+#: planes) and this share of the radius: ``check`` -- the model misses a systematic part of the shape
+#: (ovality, a bend, a dent), where random noise alone would average out.
+CHECK_NOISE_RATIO, CHECK_RMS_RADII = 2.0, 0.02
+#: Out of roundness (:func:`canalsurf.metrics.roundness`) above this share of the radius: ``check``.
+CHECK_ROUND_RADII = 0.04
+#: Angular coverage below ONE_SIDED_DEGREES is ``check`` (the radius comes from a partial arc);
+#: below this, ``poor``.
+POOR_COVERAGE_DEGREES = 120.0
+#: A gap along the spine with no points, longer than this many radii: ``check``; longer than the
+#: second, ``poor`` (the spine there is an interpolation).
+CHECK_GAP_RADII, POOR_GAP_RADII = 1.0, 3.0
+#: More than this share of the scan on no tube: ``check`` (tubes in it may have been missed).
+CHECK_NO_TUBE_SHARE = 0.5
+
+
+def support_gap(t: np.ndarray, length: float, closed: bool) -> float:
+    """The longest stretch of spine (in length units) between consecutive footpoints ``t``.
+
+    The ends of an open spine are where its points end, so only gaps between points count.
+    """
+    s = np.sort(np.asarray(t, float)) * length
+    if len(s) < 2:
+        return float(length)
+    gaps = np.diff(s)
+    if closed:
+        gaps = np.append(gaps, s[0] + length - s[-1])
+    return float(gaps.max())
+
+
+def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, gap: float,
+                   out_of_round: float) -> tuple[str, list]:
+    """Quality of one branch and its reasons.
+
+    Parameters
+    ----------
+    rms : float
+        Inlier RMS distance of its points from its surface.
+    radius : float
+        Its mean radius.
+    noise : float
+        The scan's own noise (same units).
+    coverage : float
+        Median degrees of the circumference its points cover (NaN when too few points tell).
+    gap : float
+        :func:`support_gap` of its points.
+    out_of_round : float
+        :func:`canalsurf.metrics.roundness` of its points.
+
+    Returns
+    -------
+    quality : {"good", "check", "poor"}
+    reasons : list of str
+        One short phrase per reason, worst first.
+    """
+    found = []
+    if rms > POOR_RMS_RADII * radius:
+        found.append(("poor", f"points scatter {rms / radius:.0%} of the radius about the surface"))
+    if noise > 0 and rms > CHECK_NOISE_RATIO * noise and rms > CHECK_RMS_RADII * radius:
+        found.append(("check", f"misfit {rms / noise:.1f} times the scan's noise"))
+    if out_of_round > CHECK_ROUND_RADII * radius:
+        found.append(("check", f"out of round by {out_of_round / radius:.0%} of the radius"))
+    if not np.isfinite(coverage):
+        found.append(("check", "too few points to tell how much of the circumference was seen"))
+    elif coverage < POOR_COVERAGE_DEGREES:
+        found.append(("poor", f"seen from one side only ({coverage:.0f} degrees of the circumference)"))
+    elif coverage < ONE_SIDED_DEGREES:
+        found.append(("check", f"seen from one side ({coverage:.0f} degrees of the circumference)"))
+    if gap > POOR_GAP_RADII * radius:
+        found.append(("poor", f"a gap of {gap / radius:.1f} radii with no points along the spine"))
+    elif gap > CHECK_GAP_RADII * radius:
+        found.append(("check", f"a gap of {gap / radius:.1f} radii with no points along the spine"))
+    return _summed(found)
+
+
+def scan_quality(branches: list, no_tube_share: float) -> tuple[str, list]:
+    """Quality of a whole reconstruction: the worst of its branches', and the scan's own reasons.
+
+    Parameters
+    ----------
+    branches : list of (int, str, list)
+        ``(branch id, quality, reasons)`` of each branch.
+    no_tube_share : float
+        Share of the scan's points on no tube.
+    """
+    found = [(q, f"branch {bid}: {why}") for bid, q, reasons in branches for why in reasons]
+    if no_tube_share > CHECK_NO_TUBE_SHARE:
+        found.append(("check", f"{no_tube_share:.0%} of the points lie on no tube"))
+    return _summed(found)
+
+
+def _summed(found: list) -> tuple[str, list]:
+    found = sorted(found, key=lambda item: -LEVELS.index(item[0]))
+    quality = found[0][0] if found else "good"
+    return quality, [why for _, why in found]
