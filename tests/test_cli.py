@@ -729,3 +729,23 @@ def test_fifty_megabytes_of_random_bytes(suffix, tmp_path, capsys):
     assert time.perf_counter() - start < REFUSE_SECONDS
     assert _error_line(capsys.readouterr().err).startswith(f"canalsurf: error: {path}: {what}")
     assert not out.exists()
+
+
+def test_quiet_paper_prints_nothing_even_when_its_runner_reads_info_records(experiments, tmp_path, capsys):
+    """The paper runner lowers the pipeline logger's level to read its records; -q must still hold."""
+    import logging
+
+    def chatty(outdir, *, seeds, progress=None):
+        logger = logging.getLogger("canalsurf.pipeline")
+        level = logger.level
+        logger.setLevel(logging.INFO)
+        try:
+            logger.info("shrinking: %d moves, break count %d, stopped by %s", 5, 10, "mu")
+        finally:
+            logger.setLevel(level)
+        return {}
+
+    experiments.run_paper = chatty
+    assert cli.main(["-q", "paper", "-o", str(tmp_path)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and captured.out == ""

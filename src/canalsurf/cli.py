@@ -347,8 +347,9 @@ def build_parser() -> argparse.ArgumentParser:
     # paper -----------------------------------------------------------------------------------------
     p = sub.add_parser(
         "paper", formatter_class=fmt, help="reproduce the paper's experiments",
-        description="Run the paper's Section 4 experiments over several seeds and write the tables, "
-                    "figures and the reproduction document into OUTDIR.",
+        description="Run the paper's Section 4 experiments over several seeds and write the "
+                    "reproduction document, OUTDIR/paper-reproduction.md (Markdown tables: the paper's "
+                    "figures beside ours), into OUTDIR.",
         epilog="examples:\n"
                "  canalsurf paper -o docs/paper\n"
                "  canalsurf paper -o /tmp/paper --seeds 3 -v")
@@ -435,6 +436,9 @@ def _logging(verbose: int, quiet: bool):
     level = logging.DEBUG if verbose > 1 else logging.INFO if verbose else \
         logging.ERROR if quiet else logging.WARNING
     handler = _TqdmHandler(sys.stderr)
+    # The handler filters too: a library part may lower its own logger's level to read its records
+    # (the paper runner does), and those records must not reach the console past -q.
+    handler.setLevel(level)
     handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
     old_level = logger.level
     logger.addHandler(handler)
@@ -640,6 +644,10 @@ def _describe(model) -> str:
     share = model.diagnostics.get("no_tube_share")
     if share:
         text += f"; {share:.1%} of the points on no tube"
+    quality = model.diagnostics.get("quality")
+    if quality:
+        reasons = model.diagnostics.get("quality_reasons") or []
+        text = f"quality {quality}" + (f" ({'; '.join(reasons)})" if reasons else "") + f": {text}"
     return text
 
 
