@@ -39,6 +39,8 @@ FULL = (10_000_000,)
 STAGES = ("normals", "shrink", "thin", "skeleton", "fit", "junctions", "residual")
 #: The benchmark scene: the ``plant`` network (23 tubes per bay, a floor and boxes), its size and points.
 SCENE, SCENE_SIZE, SCENE_POINTS = "plant", 1, 1_000_000
+#: A true tube of the scene counts as found when its matched model branch covers this share of it.
+FOUND_COVERED = 0.95
 #: Targets per size: (largest total wall / floor, largest total wall in seconds, largest peak MB).
 #: Where a ratio is given it is the target and the seconds only say roughly what it means on a
 #: typical machine; a paper-sized cloud has no meaningful floor, so there the seconds count
@@ -107,11 +109,13 @@ def score_scene(model_path: Path) -> dict:
 
     network, truth = canalsurf.load_model(model_path), _scene()
     c = compare_network(network, truth)
+    # A true tube is found when the model branch matched to it follows it (covers 95 % of it); the
+    # accuracy columns are over the tubes found (a missed tube's "match" is some other branch).
+    found = [b for b in c["branches"] if b["covered"] >= FOUND_COVERED]
     return {"branches": len(network.branches), "found_junctions": len(network.junctions),
-            "one_to_one": c["one_to_one"],
-            "spine_mean": max(b["spine_mean"] for b in c["branches"]),
-            "radius": max(b["radius_mean"] for b in c["branches"]),
-            "covered": min(b["covered"] for b in c["branches"]),
+            "found": len(found),
+            "spine_mean": max((b["spine_mean"] for b in found), default=float("nan")),
+            "radius": max((b["radius_mean"] for b in found), default=float("nan")),
             "clutter_right": c["clutter_right"], "tube_right": c["tube_right"]}
 
 
@@ -129,9 +133,9 @@ def bench_scene(workdir: Path) -> dict:
 
 
 def scene_table(row: dict) -> str:
-    head = ("| scene | tubes | points | " + " | ".join(STAGES) + " | total wall s | peak MB | branches found "
-            "| spine mean % r (worst branch) | radius err % r (worst) | covered (least) | clutter / tube "
-            "points right |")
+    head = ("| scene | tubes | points | " + " | ".join(STAGES) + " | total wall s | peak MB | tubes found "
+            "| branches, junctions in the model | spine mean % r (worst tube found) | radius err % r (worst) "
+            "| clutter / tube points right |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     if row["exit"] != 0:
         lines.append(f"| {SCENE} | {row['tubes']} | {row['points']:,} | failed (exit {row['exit']}): "
@@ -139,9 +143,9 @@ def scene_table(row: dict) -> str:
         return "\n".join(lines)
     st = " | ".join(f"{row['stages'].get(s, 0.0):.2f}" for s in STAGES)
     lines.append(f"| {SCENE} (size {SCENE_SIZE}) | {row['tubes']} | {row['points']:,} | {st} | {row['wall']:.1f} | "
-                 f"{row['rss'] / 2**20:.0f} | {row['branches']} of {row['tubes']}, junctions "
-                 f"{row['found_junctions']} of {row['junctions']} | {100 * row['spine_mean']:.2f} | "
-                 f"{100 * row['radius']:.2f} | {row['covered']:.3f} | {row['clutter_right']:.3f} / "
+                 f"{row['rss'] / 2**20:.0f} | {row['found']} of {row['tubes']} | {row['branches']} "
+                 f"(true {row['tubes']}), {row['found_junctions']} (true {row['junctions']}) | "
+                 f"{100 * row['spine_mean']:.2f} | {100 * row['radius']:.2f} | {row['clutter_right']:.3f} / "
                  f"{row['tube_right']:.3f} |")
     return "\n".join(lines)
 
@@ -278,8 +282,9 @@ def main(argv=None) -> int:
                f"{SCENE_SIZE}: racks of parallel pipes, runs with elbows, tees, boxes on a floor; 2 % noise, "
                f"20 % of the points on clutter), {SCENE_POINTS:,} points, reconstructed by the same command "
                "with no parameters; accuracy by `canalsurf.metrics.compare_network` against the scene's "
-               "ground truth (worst branch; spine and radius away from junctions, in % of each branch's "
-               "radius).\n\n" + scene + "\n"))
+               "ground truth: a tube is *found* when the model branch nearest to it covers 95 % of its "
+               "spine within half a radius; spine and radius errors away from junctions, in % of each "
+               "branch's radius, worst over the tubes found).\n\n" + scene + "\n"))
     return 0
 
 

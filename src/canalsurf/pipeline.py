@@ -494,7 +494,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
         for i, (guess, idx) in enumerate(zip(guesses, parts)):
             if fits[i] is None:
                 if len(idx) < C.POINTS_PER_SEGMENT:
-                    fits[i] = False
+                    reason, fits[i] = f"only {len(idx)} points lie near the first estimate of a tube", False
                     continue
                 try:
                     fits[i] = _fit_branch(points[idx], guess, kind=kind, refine=refine)
