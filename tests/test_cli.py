@@ -749,3 +749,32 @@ def test_quiet_paper_prints_nothing_even_when_its_runner_reads_info_records(expe
     assert cli.main(["-q", "paper", "-o", str(tmp_path)]) == 0
     captured = capsys.readouterr()
     assert captured.err == "" and captured.out == ""
+
+
+def test_reconstruct_a_network_with_labels(tmp_path, capsys):
+    """A T junction end to end: model.json version 2, one united mesh, branch columns and point labels."""
+    trimesh = pytest.importorskip("trimesh")
+    plyfile = pytest.importorskip("plyfile")
+    truth = canalsurf.make_network("t-junction", n=12_000, rng=4)
+    cloud = tmp_path / "tee.ply"
+    write_points(cloud, truth.points, None)
+    out = tmp_path / "out"
+    assert cli.main(["reconstruct", str(cloud), "-o", str(out), "--labels"]) == 0
+    assert "3 branches (3 pipes, 0 canals), 1 junction, 1 separate network" in capsys.readouterr().out
+
+    data = json.loads((out / "model.json").read_text())
+    assert data["version"] == 2 and len(data["branches"]) == 3 and len(data["junctions"]) == 1
+    assert data["components"] == [[0, 1, 2]]
+    mesh = trimesh.load(out / "surface.ply", force="mesh", process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    assert len(mesh.split(only_watertight=False)) == 1  # the tubes are united at the junction
+    table = np.loadtxt(out / "spine.csv", delimiter=",", skiprows=1)
+    assert sorted(set(table[:, 0].astype(int))) == [0, 1, 2]
+
+    vertex = plyfile.PlyData.read(str(out / "points.ply"))["vertex"]
+    np.testing.assert_array_equal(np.column_stack([vertex["x"], vertex["y"], vertex["z"]]), truth.points)
+    label = np.asarray(vertex["branch"])
+    assert set(np.unique(label)) <= {-1, 0, 1, 2}
+    assert np.mean(label >= 0) >= 0.95
+    on = label >= 0
+    assert np.abs(np.asarray(vertex["distance"])[on]).max() < 0.1  # radius 0.6 - 1, noise 2 %
