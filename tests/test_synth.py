@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy.interpolate import BSpline
@@ -168,6 +170,18 @@ def test_fig14_radius_is_the_quadratic_bspline_mapped_onto_the_spine():
     r = radius(np.linspace(0.0, 1.0, 4001))
     # Smallest in the middle of the (1.5, 1, 1.5) segment: 1.5 / 8 + 1 * 3 / 4 + 1.5 / 8.
     assert r.min() == pytest.approx(1.125, abs=1e-6) and r.max() <= 2.5
+
+
+def test_stated_radius_ranges_are_true():
+    """A description's "from A to B" is the least and the greatest radius, to 3 significant digits."""
+    t = np.linspace(0.0, 1.0, 200001)
+    stated = {name: re.search(r"from (\d+(?:\.\d+)?) to (\d+(?:\.\d+)?)", entry[4])
+              for name, entry in synth.SURFACES.items()}
+    stated = {name: match.groups() for name, match in stated.items() if match}
+    assert {"fig14-canal", "canal-x3"} <= set(stated)
+    for name, (low, high) in stated.items():
+        r = synth.SURFACES[name][1]()(t)
+        assert (f"{r.min():.3g}", f"{r.max():.3g}") == (f"{float(low):.3g}", f"{float(high):.3g}"), name
 
 
 def test_fig16_radius_ends():
@@ -520,3 +534,338 @@ def test_make_network_refuses_bad_arguments(kwargs, match):
     kwargs = {"name": "t-junction", "n": 100} | kwargs
     with pytest.raises(InputError, match=match):
         synth.make_network(kwargs.pop("name"), **kwargs)
+
+
+# --- simulated scans ----------------------------------------------------------------------------------
+
+def _straight_branch(a, b, r=1.0, ends=(None, None)):
+    """A straight tube from ``a`` to ``b`` (cubic spine on normalised arc length)."""
+    from scipy.interpolate import make_interp_spline
+
+    xyz = np.linspace(np.asarray(a, float), np.asarray(b, float), 4)
+    return synth.SyntheticBranch(make_interp_spline(np.linspace(0, 1, 4), xyz, k=3), constant_spline(r), ends)
+
+
+def _pipe(a=(-5.0, 0.0, 0.0), b=(5.0, 0.0, 0.0), r=1.0):
+    """A straight open pipe as a SyntheticTube (its truth only)."""
+    branch = _straight_branch(a, b, r)
+    return synth.SyntheticTube("pipe", np.empty((0, 3)), np.empty((0, 3)), branch.spine, branch.radius, False, 0.0)
+
+
+def _network(*branches, name="pair"):
+    """Branches as a SyntheticNetwork without junctions or clutter (its truth only)."""
+    return synth.SyntheticNetwork(name, np.empty((0, 3)), np.empty((0, 3)), np.empty(0, np.int64), branches,
+                                  np.empty((0, 3)), 0.0)
+
+
+def _coverage(points):
+    """Degrees of the circle around the x axis that the points cover (360 less the widest empty angle)."""
+    a = np.sort(np.arctan2(points[:, 2], points[:, 1]))
+    return 360.0 - np.degrees(np.max(np.diff(np.concatenate([a, [a[0] + 2 * np.pi]]))))
+
+
+def test_scan_of_a_pipe_is_one_sided_and_two_opposite_scanners_see_more():
+    """From one side a pipe shows less than half its circumference (a scanner 20 r away sees the arc
+    of 2 acos(1/20) = 174 degrees), and nothing of its far side; two facing scanners see nearly all of it."""
+    pipe = _pipe()
+    one = synth.scan(pipe, positions=[[0.0, -20.0, 0.0]], step=0.2, noise=0.0, ground=False)
+    assert len(one.points) > 1000 and not one.outlier.any()
+    # Visible points satisfy (P - C) . (O - C) >= r^2: here y <= -r^2 / 20.
+    assert one.points[:, 1].max() <= -1 / 20 + 1e-9
+    assert 150.0 < _coverage(one.points) < 2 * np.degrees(np.arccos(1 / 20)) + 1e-6
+    facing = np.einsum("ij,ij->i", one.normals, one.scan.positions[0] - one.points)
+    assert facing.min() > 0
+    two = synth.scan(pipe, positions=[[0.0, -20.0, 0.0], [0.0, 20.0, 0.0]], step=0.2, noise=0.0, ground=False)
+    assert _coverage(two.points) > 330.0
+    assert sorted(set(two.scan.scanner.tolist())) == [0, 1]
+    assert np.all(two.points[two.scan.scanner == 1, 1] >= 1 / 20 - 1e-9)
+
+
+def _segment_clearance(origin, points, a, b, samples=400):
+    """Smallest distance from the axis ``a b`` of the samples of the segments ``origin -> points`` that lie
+    between the planes through ``a`` and ``b`` across it (the open pipe's slab), inf where none does."""
+    s = np.linspace(0.0, 1.0, samples)[None, :, None]
+    along = origin + s * (points[:, None, :] - origin)                 # (N, samples, 3)
+    axis = (b - a) / np.linalg.norm(b - a)
+    u = (along - a) @ axis
+    distance = np.linalg.norm(along - (a + u[..., None] * axis), axis=2)
+    return np.where((u >= 0) & (u <= np.linalg.norm(b - a)), distance, np.inf).min(axis=1)
+
+
+def test_a_tube_hides_what_stands_behind_it():
+    """A short pipe in front of a long one casts a shadow on it: no ray to a point of the long pipe
+    passes through the short one, and the long pipe's middle is missing."""
+    front = _straight_branch([-2.0, 0.0, 0.0], [2.0, 0.0, 0.0])
+    back = _straight_branch([-10.0, 5.0, 0.0], [10.0, 5.0, 0.0])
+    origin = np.array([0.0, -20.0, 0.0])
+    both = synth.scan(_network(front, back), positions=origin, step=0.25, noise=0.0, ground=False)
+    alone = synth.scan(_network(back), positions=origin, step=0.25, noise=0.0, ground=False)
+    seen = both.points[both.label == 1]
+    assert len(seen) > 100 and len(both.points[both.label == 0]) > 100
+    # The segment from the scanner to each seen point stays outside the front pipe (radius 1; the sampling
+    # of the segment every 0.06 can miss at most 5e-4 of a radius).
+    assert _segment_clearance(origin, seen, np.array([-2.0, 0, 0]), np.array([2.0, 0, 0])).min() >= 1 - 1e-3
+    # The shadow: the middle of the back pipe (|x| < 2.5 is behind the front pipe) is missing.
+    assert not np.any(np.abs(seen[:, 0]) < 2.4)
+    assert np.sum(np.abs(alone.points[:, 0]) < 2.4) > 100
+    assert len(seen) < len(alone.points)
+
+
+def test_scan_spacing_grows_with_range():
+    """An angular grid: the median neighbour distance of far points exceeds that of near ones."""
+    pipe = _pipe([0.0, 0.0, 0.0], [0.0, 40.0, 0.0])
+    cloud = synth.scan(pipe, positions=[[-8.0, 5.0, 0.0]], step=0.2, noise=0.0, ground=False)
+    distance = cloud.scan.range
+    np.testing.assert_allclose(distance, np.linalg.norm(cloud.points - cloud.scan.positions[0], axis=1))
+    near, far = cloud.points[distance < 14], cloud.points[distance > 28]
+    assert len(near) > 100 and len(far) > 100
+    spacing = [np.median(cKDTree(p).query(p, k=2)[0][:, 1]) for p in (near, far)]
+    assert spacing[1] > 1.5 * spacing[0]
+
+
+def test_scan_quantises_coordinates_like_a_las_file():
+    raw = synth.scan("t-junction", step=0.3, rng=2)
+    grid = synth.scan("t-junction", step=0.3, rng=2, quantum=0.01)
+    assert grid.scan.quantum == 0.01 and raw.scan.quantum is None
+    units = grid.points / 0.01
+    np.testing.assert_allclose(units, np.round(units), rtol=0, atol=1e-6)
+    assert np.abs(grid.points - raw.points).max() <= 0.005 + 1e-12
+    assert np.abs(raw.points / 0.01 - np.round(raw.points / 0.01)).max() > 0.1
+
+
+@pytest.mark.parametrize("name", ["fig14-canal", "torus"])
+def test_scan_points_lie_on_the_surface_within_their_noise(name, envelope_distance):
+    """Brute force: a noise-free scan lies on the true surface; a noisy one is off it by no more than its
+    offset along the ray, and those offsets are N(0, sigma^2) with sigma = noise + range_noise * range."""
+    quiet = synth.scan(name, step=0.35, noise=0.0, ground=False)
+    noisy = synth.scan(name, step=0.35, noise=0.02, range_noise=1e-3, ground=False, rng=3)
+    np.testing.assert_array_equal(quiet.scan.range, noisy.scan.range)
+    assert quiet.closed == (name == "torus") and quiet.noise_model == "scan" and np.isnan(quiet.arc)
+    dist, t = envelope_distance(quiet.points, quiet.spine, quiet.radius, closed=quiet.closed)
+    assert np.abs(dist).max() <= 1e-6 * quiet.radius(t).max()
+    # True normals: from the spine towards the point (the envelope's normal), turned to the scanner.
+    toward = quiet.scan.positions[0] - quiet.points
+    assert np.all(np.einsum("ij,ij->i", quiet.normals, toward) > 0)
+    radial = quiet.points - quiet.spine(t)
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", radial, quiet.normals)), 1.0, atol=1e-6)
+
+    offset = np.linalg.norm(noisy.points - noisy.scan.positions[0], axis=1) - noisy.scan.range
+    sigma = noisy.scan.sigma
+    np.testing.assert_allclose(sigma, 0.02 + 1e-3 * noisy.scan.range)
+    z = offset / sigma
+    assert abs(z.mean()) < 0.1 and 0.9 < z.std() < 1.1 and np.abs(z).max() < 6
+    noisy_dist, _ = envelope_distance(noisy.points, noisy.spine, noisy.radius, closed=noisy.closed)
+    assert np.all(np.abs(noisy_dist) <= np.abs(offset) + 1e-6)
+
+
+def _on_clutter(points, net, ground):
+    """True for points on the floor or ground plane or on a face of a box."""
+    on = np.abs(points[:, 2] - ground) < 1e-9
+    if net.floor is not None:
+        on |= np.abs(points[:, 2] - net.floor[4]) < 1e-9
+    for lo, hi in net.boxes:
+        inside = np.all((points >= lo - 1e-9) & (points <= hi + 1e-9), axis=1)
+        on_face = np.any((np.abs(points - lo) < 1e-9) | (np.abs(points - hi) < 1e-9), axis=1)
+        on |= inside & on_face
+    return on
+
+
+@pytest.mark.parametrize("name", ["t-junction", "floor-clutter"])
+def test_scan_labels_are_right(name, envelope_distance):
+    """Each tube point lies on its branch's surface and inside no other tube; every other point lies on
+    the floor, a box or the ground."""
+    net = synth.scan(name, positions=2, step=0.25, noise=0.0)
+    assert isinstance(net, synth.SyntheticNetwork) and net.points.shape == net.normals.shape
+    assert net.label.dtype.kind == "i" and set(net.label.tolist()) == {-1, *range(len(net.branches))}
+    for b, branch in enumerate(net.branches):
+        mine = net.label == b
+        dist, _ = envelope_distance(net.points[mine], branch.spine, branch.radius)
+        assert np.abs(dist).max() <= 1e-6 * branch.radius(0.5)
+        others = net.points[~mine & ~net.clutter]
+        if len(others):
+            depth, _ = envelope_distance(others, branch.spine, branch.radius)
+            assert depth.min() >= -1e-6
+    assert np.all(_on_clutter(net.points[net.clutter], net, net.scan.ground))
+    assert not np.any(_on_clutter(net.points[~net.clutter], net, net.scan.ground))
+    clutter_normals = net.normals[net.clutter]
+    assert np.all(np.isin(np.abs(clutter_normals).max(axis=1), [1.0]))
+
+
+def test_scan_of_a_generated_network_sees_its_floor_and_boxes():
+    cloud = synth.make_network("floor-clutter", n=200, rng=0)
+    assert cloud.floor is not None and len(cloud.boxes) == 1
+    assert synth.make_network("floor-clutter", n=200, rng=0, clutter=0.0).floor is None
+    np.testing.assert_array_equal(synth.scan(cloud, step=0.4).points, synth.scan("floor-clutter", step=0.4).points)
+
+
+def test_scanner_inside_a_pipe_sees_its_inner_wall_all_around():
+    cloud = synth.scan(_pipe(r=1.0), positions=[[0.0, 0.2, 0.1]], step=3.0, noise=0.0, ground=False)
+    assert len(cloud.points) > 1000 and not cloud.outlier.any()
+    inner = np.abs(cloud.points[:, 0]) < 4.9
+    np.testing.assert_allclose(np.linalg.norm(cloud.points[inner][:, 1:], axis=1), 1.0, atol=1e-9)
+    assert _coverage(cloud.points[inner]) > 355.0
+    assert len(np.unique(cloud.points, axis=0)) == len(cloud.points)  # straight up and down: one ray each
+    # the normals face the scanner, so inwards here
+    assert np.all(np.einsum("ij,ij->i", cloud.normals, cloud.points * [0, 1, 1]) < 0)
+
+
+def test_default_scanners_follow_the_documented_rule():
+    one = synth.scan("rack", step=0.5)
+    three = synth.scan("rack", positions=3, step=0.5)
+    lo, hi = synth._scene_box(synth._scene("rack", {}))
+    centre, size = (lo + hi) / 2, np.linalg.norm(hi - lo)
+    ground = one.scan.ground
+    assert ground == pytest.approx(lo[2] - 2.0)  # one largest radius (2) below the lowest pipe
+    for cloud in (one, three):
+        xy = cloud.scan.positions[:, :2] - centre[:2]
+        np.testing.assert_allclose(np.linalg.norm(xy, axis=1), synth.SCANNER_DISTANCE * size)
+        np.testing.assert_allclose(cloud.scan.positions[:, 2], (ground + hi[2]) / 2)
+    # the rack is longer in x: the first scanner stands on the -y side, turned by 30 degrees
+    first = one.scan.positions[0, :2] - centre[:2]
+    assert np.degrees(np.arctan2(first[1], first[0])) == pytest.approx(-90.0 + synth.SCANNER_TURN)
+    np.testing.assert_allclose(three.scan.positions[0], one.scan.positions[0])
+    angles = np.degrees(np.arctan2(*(three.scan.positions[:, :2] - centre[:2]).T[::-1]))
+    np.testing.assert_allclose(np.diff(np.unwrap(np.radians(angles))), np.radians(120.0))
+
+
+def test_scan_defaults_follow_the_scene():
+    cloud = synth.scan("fig9-pipe")
+    distance = np.linalg.norm(cloud.scan.positions[0] - np.mean(synth._scene_box(synth._scene("fig9-pipe", {})),
+                                                                axis=0))
+    assert cloud.scan.step == pytest.approx(np.degrees(synth.SCAN_SPACING_PER_RADIUS / distance))
+    assert cloud.noise == cloud.scan.noise == pytest.approx(synth.SCAN_NOISE_PER_RADIUS)
+    assert cloud.scan.range_noise == pytest.approx(cloud.scan.noise / distance)
+    assert cloud.scan.rays >= len(cloud.points)
+    assert cloud.outlier.any() and np.all(np.abs(cloud.points[cloud.outlier][:, 2] - cloud.scan.ground)
+                                          <= 6 * cloud.scan.sigma[cloud.outlier])
+
+
+def test_scan_same_seed_same_scan():
+    a = synth.scan("y-vessel", step=0.3, rng=7)
+    b = synth.scan("y-vessel", step=0.3, rng=np.random.default_rng(7))
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(a.normals, b.normals)
+    np.testing.assert_array_equal(a.label, b.label)
+    c = synth.scan("y-vessel", step=0.3, rng=8)
+    np.testing.assert_array_equal(a.label, c.label)  # the seed moves the points, not what is seen
+    assert not np.array_equal(a.points, c.points)
+    np.testing.assert_array_equal(synth.scan("torus", step=1.0).points, synth.scan("torus", step=1.0).points)
+
+
+def test_scan_refuses_a_grid_larger_than_max_points():
+    with pytest.raises(InputError, match=r"^a scan from 1 scanner with a step of 0\.001 degrees would cast "
+                                         r"[\d,]+ rays, more than max_points = 2,000,000; give a larger step "
+                                         r"\(about [\d.]+ degrees or more: the rays fall with its square\) or "
+                                         r"raise max_points$"):
+        synth.scan("fig9-pipe", step=0.001)
+    with pytest.raises(InputError, match=r"more than max_points = 100; give a larger step"):
+        synth.scan("fig9-pipe", max_points=100)
+    assert len(synth.scan("fig9-pipe", step=2.0, max_points=1000).points) <= 1000
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"truth": "knot"}, r"^surface or network name must be one of 'fig9-pipe', .*, 'plant', got 'knot'$"),
+    ({"truth": 3}, r"^scan needs a name of SURFACES or NETWORKS, a SyntheticTube or a SyntheticNetwork, got int$"),
+    ({"size": 2}, r"^option 'size' is an option of a network's builder; 'fig9-pipe' takes none$"),
+    ({"truth": "t-junction", "size": 2}, r"^the 't-junction' network has no option 'size'; it takes none$"),
+    ({"positions": 0}, r"^positions must be a number of scanners >= 1 or an array of shape \(S, 3\), got 0$"),
+    ({"positions": [[0.0, 1.0]]}, r"^positions must be a number of scanners or a finite array of shape \(S, 3\), "
+                                  r"got an array of shape \(1, 2\)$"),
+    ({"positions": [[0.0, 1.0, np.nan]]}, r"finite array of shape \(S, 3\)"),
+    ({"step": 0}, r"^step must be an angle in \(0, 90\] degrees, got 0\.0$"),
+    ({"step": 91}, r"^step must be an angle in \(0, 90\] degrees, got 91\.0$"),
+    ({"step": "x"}, r"^step must be a number, got 'x'$"),
+    ({"noise": -1}, r"^noise must be >= 0, got -1\.0$"),
+    ({"range_noise": -1e-3}, r"^range_noise must be >= 0, got -0\.001$"),
+    ({"quantum": 0}, r"^quantum must be > 0, got 0\.0$"),
+    ({"ground": "yes"}, r"^ground must be True or False, got 'yes'$"),
+    ({"max_points": 0}, r"^max_points must be a whole number in \[1, 20,000,000\], got 0$"),
+    ({"rng": -1}, r"^rng must be None, a seed"),
+    ({"positions": [[1e3, 1.0, 0.5]], "step": 1.0}, r"^no ray of the scan met the scene \(step 1 degrees from 1 "
+                                                    r"scanner\(s\)\): give a smaller step or place the scanners "
+                                                    r"nearer$"),
+])
+def test_scan_refuses_bad_arguments(kwargs, match):
+    kwargs = {"truth": "fig9-pipe"} | kwargs
+    if "no ray" in match:  # a scene smaller than one step seen from afar, between the grid's directions
+        kwargs["truth"] = _pipe(r=1e-4, a=(0, 0, 0), b=(1e-3, 0, 0))
+        kwargs["ground"] = False
+    with pytest.raises(InputError, match=match):
+        synth.scan(kwargs.pop("truth"), **kwargs)
+
+
+@pytest.mark.parametrize("missing", ["trimesh", "embreex"])
+def test_scan_without_its_extra_names_it(missing, monkeypatch):
+    import sys
+
+    import trimesh.ray.ray_pyembree  # noqa: F401 -- loaded, so that the test leaves it as it was
+
+    monkeypatch.setitem(sys.modules, missing, None)  # as if not installed
+    monkeypatch.delitem(sys.modules, "trimesh.ray.ray_pyembree")  # imported again, so it needs embreex again
+    with pytest.raises(InputError, match=r"^simulating a scan needs the 'scan' extra \(trimesh with Embree\) — "
+                                         r"pip install 'canalsurf\[scan\]'$"):
+        synth.scan("fig9-pipe", step=2.0)
+
+
+def _brute_force_hits(triangles, fan):
+    """The first triangle each ray of ``fan`` meets (-1: none) and the distance to it (inf: none), by
+    testing every ray against every triangle (Moeller-Trumbore): the slow, obvious reference."""
+    directions = fan.directions()
+    v0 = triangles[:, 0]
+    e1, e2 = triangles[:, 1] - v0, triangles[:, 2] - v0
+    p = np.cross(directions[:, None], e2[None])  # (rays, triangles, 3)
+    s = fan.origin - v0
+    q = np.cross(s, e1)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a ray in a triangle's plane (det 0) misses it
+        det = np.einsum("rfj,fj->rf", p, e1)
+        u = np.einsum("rfj,fj->rf", p, s) / det
+        v = directions @ q.T / det
+        distance = np.einsum("fj,fj->f", e2, q) / det
+    hit = (u >= 0) & (v >= 0) & (u + v <= 1) & (distance > 0)
+    distance = np.where(hit, distance, np.inf)
+    triangle = np.argmin(distance, axis=1)
+    nearest = distance[np.arange(len(triangle)), triangle]
+    return np.where(np.isfinite(nearest), triangle, -1), nearest
+
+
+def test_ray_caster_matches_brute_force():
+    """Embree's first hits against every ray tested on every triangle, from outside a torus and from
+    inside it (a fan that turns all the way round)."""
+    from canalsurf.surface import surface_mesh
+
+    tube = synth.make_tube("torus", n=10)
+    vertices, faces = surface_mesh(tube.spine, tube.radius, closed=True, n_around=8, n_along=24)
+    triangles = vertices[faces]
+    caster = synth._ray_caster(triangles)
+    h = np.radians(1.5)
+    fans = [synth._Fan(np.array([1.0, -15.0, 3.0]), np.radians(70), h, 30, np.radians(-20), h, 17),
+            synth._Fan(np.array([4.0, 0.1, 0.05]), 0.0, 2 * np.pi / 60, 60, -np.pi / 2, 4 * h, 31, wraps=True)]
+    for fan in fans:
+        triangle, distance = synth._first_hits(caster, triangles, fan)
+        reference, reference_distance = _brute_force_hits(triangles, fan)
+        assert (triangle >= 0).sum() > 100
+        np.testing.assert_array_equal(triangle, reference)
+        np.testing.assert_allclose(distance, reference_distance, rtol=1e-12)
+
+
+def test_cli_writes_a_scan(tmp_path, capsys):
+    from canalsurf import cli
+    from canalsurf.io import read_points
+
+    path = tmp_path / "scan.ply"
+    argv = ["synth", "t-junction", "-o", str(path), "--scanner", "2", "--step", "0.3", "--quantum", "0.01",
+            "--seed", "4", "--normals"]
+    assert cli.main(argv) == 0
+    out = capsys.readouterr().out
+    truth = synth.scan("t-junction", positions=2, step=0.3, quantum=0.01, rng=4)
+    assert out.startswith(f"{path}: {len(truth.points)} points of t-junction (simulated scan from 2 scanners, "
+                          "step 0.3°, Gaussian noise along the ray σ = 0.006 + ")
+    assert "coordinates on a 0.01 grid, ground at z = -2;" in out and out.endswith(", seed 4, with true normals)\n")
+    points, normals = read_points(path)
+    np.testing.assert_allclose(points, truth.points, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(normals, truth.normals, rtol=0, atol=1e-6)
+    assert cli.main(["synth", "fig9-pipe", "-o", str(tmp_path / "x.xyz"), "--step", "0.3"]) == 2
+    assert "--step is an option of a simulated scan: add --scanner" in capsys.readouterr().err
+    assert cli.main(["synth", "fig9-pipe", "-o", str(tmp_path / "x.xyz"), "--scanner", "--arc", "180"]) == 2
+    assert "--arc does not apply to a simulated scan (--scanner)" in capsys.readouterr().err

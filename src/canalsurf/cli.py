@@ -306,7 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf synth torus -o torus.xyz --n 5000 --noise 0 --seed 3 --normals\n"
                "  canalsurf synth elbow -o scan.ply --arc 200 --outliers 0.05   # as a scanner sees it\n"
                "  canalsurf synth t-junction -o tee.ply --noise 0.01 --clutter 0.2   # a network on a floor\n"
-               "  canalsurf synth plant -o plant.ply --n 1000000 --size 10")
+               "  canalsurf synth plant -o plant.ply --n 1000000 --size 10\n"
+               "  canalsurf synth scene -o scan.ply --scanner 2 --quantum 0.01   # what 2 scanners see")
     p.add_argument("name", nargs="?", metavar="NAME", choices=(*SURFACES, *NETWORKS),
                    help="surface or network to sample")
     p.add_argument("-o", "--output", metavar="FILE", type=Path, help="point file to write")
@@ -317,7 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=_number(float, low=0, what="a number >= 0"),
                    help="half-width of the offset along the normal: for a surface in its units (default: "
                         "the paper's value for NAME); for a network RELATIVE to the local radius, below 0.5 "
-                        f"(default {make_network.__kwdefaults__['noise']:g}: ±2 %% of the radius)")
+                        f"(default {make_network.__kwdefaults__['noise']:g}: ±2 %% of the radius); with "
+                        "--scanner the standard deviation along the ray, in the scene's units")
     p.add_argument("--seed", type=whole(0, "a non-negative integer"), default=0,
                    help="random seed, an integer >= 0 (default 0)")
     p.add_argument("--normals", action="store_true", help="also write the true normals (nx, ny, nz)")
@@ -341,6 +343,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "gets a floor under it)")
     g.add_argument("--size", type=whole(1, "a positive integer"),
                    help="plant only: number of bays of 23 tubes each (default 1)")
+    g = p.add_argument_group("simulated scan (surfaces and networks)")
+    g.add_argument("--scanner", metavar="N", nargs="?", const=1, type=whole(1, "a positive number of scanners"),
+                   help="write what N terrestrial scanners (default 1) see instead of a sample uniform by area: "
+                        "rays on a regular angular grid, the first hit of each (a tube hides its far side and "
+                        "what stands behind it), spacing growing with range, Gaussian noise along the ray "
+                        "(--noise is then its standard deviation at range 0, in the scene's units; default 1 %% "
+                        "of the smallest radius, doubling out to the scene), a ground plane")
+    g.add_argument("--step", metavar="DEGREES", type=_number(float, low=0, high=90, strict=True,
+                                                             what="an angle in (0, 90] degrees"),
+                   help="angular step of the scanner (default: 0.15 of the smallest radius, seen from the "
+                        "scene's centre)")
+    g.add_argument("--quantum", metavar="Q", type=_LENGTH,
+                   help="round the coordinates to whole multiples of Q, as a LAS file stores them (e.g. 0.01)")
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_synth)
 
@@ -836,6 +851,18 @@ def _cmd_synth(args, console: _Console) -> int:
                          f"use one of {', '.join(POINT_WRITE_FORMATS)}")
     network = args.name in NETWORKS
     # options that do not apply to NAME are refused rather than silently ignored
+    if args.scanner is None:
+        stray = [option for option, set_ in (("--step", args.step), ("--quantum", args.quantum)) if set_ is not None]
+        if stray:
+            raise _UsageError(f"{stray[0]} is an option of a simulated scan: add --scanner", f"{PROG} synth")
+    else:
+        given = {"--n": args.n is not None, "--sampling": args.sampling != "area", "--gaussian": args.gaussian,
+                 "--arc": args.arc != 360, "--outliers": args.outliers != 0, "--density-ratio": args.density_ratio != 1,
+                 "--clutter": args.clutter is not None}
+        wrong = [option for option, set_ in given.items() if set_]
+        if wrong:
+            raise _UsageError(f"{wrong[0]} does not apply to a simulated scan (--scanner): its points follow "
+                              "--step and what the scanners see", f"{PROG} synth")
     if network:
         given = {"--sampling": args.sampling != "area", "--gaussian": args.gaussian, "--arc": args.arc != 360,
                  "--outliers": args.outliers != 0, "--density-ratio": args.density_ratio != 1}
@@ -845,7 +872,24 @@ def _cmd_synth(args, console: _Console) -> int:
     if wrong:
         kind = "surfaces, not of the network" if network else "networks, not of the surface"
         raise _UsageError(f"{wrong[0]} is an option of the {kind} {args.name!r}", f"{PROG} synth")
-    if network:
+    if args.scanner is not None:
+        from .synth import scan
+
+        cloud = scan(args.name, positions=args.scanner, step=args.step, noise=args.noise, quantum=args.quantum,
+                     rng=args.seed, **({} if args.size is None else {"size": args.size}))
+        info, n = cloud.scan, len(cloud.points)
+        share = float(np.mean(cloud.label < 0 if network else cloud.outlier))
+        s = len(info.positions)
+        shape = (f"simulated scan from {s} scanner{'s' * (s != 1)}, step {info.step:.4g}°, Gaussian noise along "
+                 f"the ray σ = {info.noise:.3g} + {info.range_noise:.3g} × range, "
+                 + (f"coordinates on a {info.quantum:g} grid" if info.quantum else "not quantised")
+                 + (f", ground at z = {info.ground:.4g}" if info.ground is not None else "")
+                 + f"; {100 * share:.3g} % of the points off the tubes")
+        record = {"network": network, "scanner": True, "positions": info.positions.tolist(), "step": info.step,
+                  "noise_model": "gaussian along the ray, sigma = noise + range_noise * range",
+                  "range_noise": info.range_noise, "quantum": info.quantum, "ground": info.ground,
+                  "rays": info.rays, "dropped": info.dropped, "off_tubes": share}
+    elif network:
         options = {key: value for key, value in (("n", args.n), ("noise", args.noise), ("clutter", args.clutter),
                                                   ("size", args.size)) if value is not None}
         cloud = make_network(args.name, rng=args.seed, **options)

@@ -43,6 +43,12 @@ Noise there is relative to the local radius.  Layouts (branch indices in order):
 ``scene``          0 - 2 a T (junction 0), 3 - 5 a rack, 6, 7 a crossing pair; a box and a floor.
 ``plant``          per bay (``size`` of them): 15 rack pipes, 2 elbow runs, 2 T's (3 branches each); a box;
                    one floor.
+
+Simulated scans (:func:`scan`) show any surface or network as a terrestrial laser scanner sees it: from
+one to a few positions, rays on an angular grid (so the spacing grows with range), the first hit of each
+(a tube hides its far side and what stands behind it), noise along the ray growing with range,
+coordinates rounded as in a LAS file, a ground plane under the scene; the truth is kept, with each
+point's scanner and range.
 """
 
 from __future__ import annotations
@@ -59,7 +65,7 @@ from .spine import constant_spline
 from .errors import InputError
 
 __all__ = ["SyntheticTube", "SURFACES", "CONDITIONS", "make_tube", "sample_tube", "view_direction", "constant_spline",
-           "SyntheticBranch", "SyntheticNetwork", "NETWORKS", "make_network", "MAX_SYNTH_POINTS"]
+           "SyntheticBranch", "SyntheticNetwork", "NETWORKS", "make_network", "MAX_SYNTH_POINTS", "scan", "ScanInfo"]
 
 _TABLE1 = [[-3.000, 6.660, 0.000], [-0.337, 5.660, -4.660], [0.410, 0.430, -8.052],
            [-2.037, -7.906, -3.354], [1.813, -6.807, -0.175], [6.760, -3.150, 0.000]]
@@ -89,7 +95,8 @@ class SyntheticTube:
     ----------
     name : str
     points, normals : ndarray, shape (N, 3)
-        Sampled (perturbed) points and the true outward unit normals there.
+        Sampled (perturbed) points and the true outward unit normals there (in a simulated scan turned
+        towards the scanner, so inwards on a tube's inside).
     spine : scipy.interpolate.BSpline
         True spine C(t), t in [0, 1] (periodic when ``closed``).
     radius : scipy.interpolate.BSpline
@@ -99,10 +106,18 @@ class SyntheticTube:
         Half-width of the uniform perturbation along the normal (its standard deviation when
         ``noise_model`` is ``"gaussian"``).
     noise_model : {"uniform", "gaussian"}
+        For a simulated scan (``noise_model="scan"``) the standard deviation at range 0, along the ray;
+        ``scan`` gives each point's.
+    noise_model : {"uniform", "gaussian", "scan"}
     outlier : ndarray of bool, shape (N,)
-        Stray points (their ``normals`` are random directions).
+        Points not on the tube: stray points (their ``normals`` are random directions), or in a simulated
+        scan the points on the ground.
     arc : float
-        Degrees of each cross-section that were sampled (360 for a full scan).
+        Degrees of each cross-section that were sampled (360 for a full scan; nan for a simulated scan,
+        whose coverage varies along the tube).
+    scan : ScanInfo, optional
+        How a simulated scan (:func:`scan`) was made and where each point was seen from; None for a
+        sampled cloud.
     """
 
     name: str
@@ -115,6 +130,7 @@ class SyntheticTube:
     noise_model: str = "uniform"
     outlier: np.ndarray | None = None
     arc: float = 360.0
+    scan: "ScanInfo | None" = None
 
     @property
     def is_pipe(self) -> bool:
@@ -185,7 +201,7 @@ SURFACES = {
                    "the paper's Figure 15 pipe: Table 2 spine, r = 0.3 (the text's '3' is a typo)"),
     "fig14-canal": (lambda: _bspline(_KNOTS_6, _TABLE1, 3),
                     lambda: _bspline([0, 0, 0, 1, 2, 3, 4, 4, 4], [2, 1.5, 1, 1.5, 2.5, 2], 2), False, 0.05,
-                    "the paper's Figure 14 canal: Table 1 spine, quadratic r(t) from 1 to 2.5"),
+                    "the paper's Figure 14 canal: Table 1 spine, quadratic r(t) from 1.125 to 2.25"),
     "fig16-canal": (lambda: _bspline(_KNOTS_6, _TABLE3, 3),
                     lambda: _bspline(_KNOTS_6, [1.9999, 1.6666, 1.103463, 1.037336, 1.833333, 2.5], 3),
                     False, 0.05, "the paper's Figure 16 canal: Table 3 spine, cubic r(t)"),
@@ -530,15 +546,27 @@ class SyntheticNetwork:
     ----------
     name : str
     points, normals : ndarray, shape (N, 3)
-        Sampled (perturbed) points and the true outward unit normals there (on clutter: the face's normal).
+        Sampled (perturbed) points and the true outward unit normals there (on clutter: the face's normal;
+        in a simulated scan turned towards the scanner).
     label : ndarray of int, shape (N,)
-        Index into ``branches`` of the branch each point was sampled on; -1 for clutter (floor, boxes).
+        Index into ``branches`` of the branch each point was sampled on; -1 for clutter (floor, boxes; in
+        a simulated scan also the ground).
     branches : tuple of SyntheticBranch
     junctions : ndarray, shape (J, 3)
         Junction points; each lies exactly at the spine ends that list it.
     noise : float
         Relative noise: a tube point was moved along its normal by U(-noise r, noise r), r the radius of
-        its branch there; a clutter point by the same share of the median radius of the branches.
+        its branch there; a clutter point by the same share of the median radius of the branches.  For a
+        simulated scan (``scan`` is set) the standard deviation at range 0 along the ray, in the scene's
+        units; ``scan`` gives each point's.
+    floor : tuple or None
+        The floor the clutter stands on, ``(x0, x1, y0, y1, z)``: a horizontal rectangle; None when the
+        cloud has no clutter.
+    boxes : tuple
+        The boxes standing on the floor, ``(low corner, high corner)`` each.
+    scan : ScanInfo, optional
+        How a simulated scan (:func:`scan`) was made and where each point was seen from; None for a
+        sampled cloud.
     """
 
     name: str
@@ -548,6 +576,9 @@ class SyntheticNetwork:
     branches: tuple
     junctions: np.ndarray
     noise: float
+    floor: tuple | None = None
+    boxes: tuple = ()
+    scan: "ScanInfo | None" = None
 
     @property
     def components(self) -> list[list[int]]:
@@ -939,7 +970,13 @@ class _Tube:
 
 def _inside_other(points: np.ndarray, label: np.ndarray, tubes) -> np.ndarray:
     """True for each point inside a tube other than its own (deeper than INSIDE_MARGIN of its radius)."""
-    inside = np.zeros(len(points), bool)
+    return _container(points, label, tubes) >= 0
+
+
+def _container(points: np.ndarray, label: np.ndarray, tubes) -> np.ndarray:
+    """For each point the index of a tube other than its own that holds it (deeper than INSIDE_MARGIN of
+    its radius), -1 where none does."""
+    inside = np.full(len(points), -1, dtype=np.int64)
     if not len(points):
         return inside
     # Bin the points on a coarse grid in (x, y) so that each tube looks only at the points near it.
@@ -965,7 +1002,7 @@ def _inside_other(points: np.ndarray, label: np.ndarray, tubes) -> np.ndarray:
         if not len(idx):
             continue
         depth = tube.depth(points[idx])
-        inside[idx[depth < -INSIDE_MARGIN * tube.r_max]] = True
+        inside[idx[depth < -INSIDE_MARGIN * tube.r_max]] = b
     return inside
 
 
@@ -1078,6 +1115,17 @@ def _sample_union(patches, n: int, rng, tubes):
     raise RuntimeError("the network's surfaces lie inside each other: no points could be kept")
 
 
+def _build(name: str, options: dict) -> _Layout:
+    """The layout of the network ``name`` built with ``options`` (checked against its builder's)."""
+    builder = NETWORKS[name][0]
+    accepted = set(inspect.signature(builder).parameters)
+    for key in options:
+        if key not in accepted:
+            takes = f"it takes {', '.join(sorted(accepted))}" if accepted else "it takes none"
+            raise InputError(f"the {name!r} network has no option {key!r}; {takes}")
+    return builder(**options)
+
+
 def make_network(name: str = "t-junction", *, n: int = 30_000, noise: float = 0.02, rng=None,
                  clutter: float | None = None, **options) -> SyntheticNetwork:
     """Sample one of the named tube networks (see :data:`NETWORKS`) with its ground truth.
@@ -1139,13 +1187,7 @@ def make_network(name: str = "t-junction", *, n: int = 30_000, noise: float = 0.
         if not 0 <= share <= MAX_CLUTTER:
             raise InputError(f"clutter must be a share of the points in [0, {MAX_CLUTTER}], got {clutter!r}")
     rng = _generator(rng)
-    builder = NETWORKS[name][0]
-    accepted = set(inspect.signature(builder).parameters)
-    for key in options:
-        if key not in accepted:
-            takes = f"it takes {', '.join(sorted(accepted))}" if accepted else "it takes none"
-            raise InputError(f"the {name!r} network has no option {key!r}; {takes}")
-    layout = builder(**options)
+    layout = _build(name, options)
     share = layout.clutter if clutter is None else share
     if share > 0 and layout.floor is None and not layout.boxes:
         layout = _on_floor(layout, share)
@@ -1163,4 +1205,607 @@ def make_network(name: str = "t-junction", *, n: int = 30_000, noise: float = 0.
     points = points + (rng.uniform(-1.0, 1.0, n) * noise * scale)[:, None] * normals
     order = rng.permutation(n)
     return SyntheticNetwork(name, points[order], normals[order], label[order], layout.branches,
-                            np.asarray(layout.junctions, float).reshape(-1, 3), noise)
+                            np.asarray(layout.junctions, float).reshape(-1, 3), noise,
+                            layout.floor if share > 0 else None, layout.boxes if share > 0 else ())
+
+
+# --------------------------------------------------------------------------------------------------
+# simulated scans: what a terrestrial laser scanner sees of a surface or network
+
+#: Default spacing of a scan's points on the scene's centre, as a share of the smallest radius: some 20
+#: points across the visible half of a cross-section (pi r / 0.15 r), as many as a sampled cloud of the
+#: paper's size has around the whole of it.
+SCAN_SPACING_PER_RADIUS = 0.15
+#: Default noise of a scan at range 0, as a share of the smallest radius: 1 % is 1 mm on a pipe of 10 cm
+#: radius, a terrestrial scanner's range noise at short range.
+SCAN_NOISE_PER_RADIUS = 0.01
+#: Default scanners stand this many scene sizes (the diagonal of the scene's bounding box) from the
+#: scene's centre: far enough to see all of it at once, near enough for the spacing to differ between
+#: its near and far sides (by a factor of about 5 / 3).
+SCANNER_DISTANCE = 2.0
+#: The first default scanner looks across the scene's shorter horizontal side, turned by this many
+#: degrees about the vertical, so that no pipe along x or y is seen exactly end on.
+SCANNER_TURN = 30.0
+#: The ground plane reaches this many scene sizes beyond the scene's footprint, so that the shadows the
+#: scene casts behind it fall on the ground.
+GROUND_MARGIN = 0.5
+#: Vertices around each tube of the scene's mesh: a polygon of 64 sides lies within 0.12 % of the radius
+#: of its circle, so occlusion and silhouettes are right to that.
+SCAN_MESH_AROUND = 64
+#: A ray's hit on the mesh of a tube is moved to the true surface along the ray (Newton's method in the
+#: distance along the ray and the spine parameter, from the hit and the nearest spine sample); the root
+#: must lie within this share of the branch's largest radius of the hit (the mesh is within 3 % of the
+#: radius of the surface), else the ray is dropped as one that grazes the surface.
+SNAP_REACH = 0.25
+#: Newton steps; the start is within 3 % r of the root and convergence quadratic, so 12 are ample.
+SNAP_STEPS = 12
+#: A root counts when |P - C(t)| - r(t) is below this share of the radius.
+SNAP_TOLERANCE = 1e-9
+#: Default bound on the rays of a scan (the grid of directions around the scene's bounding box, from
+#: every scanner): 1.5 million rays on a plant of 92 tubes took 9 s (2 cores, half of it in Embree), and
+#: a dense grid holds some 100 bytes per ray.
+MAX_SCAN_RAYS = 2_000_000
+
+
+@dataclass(frozen=True)
+class ScanInfo:
+    """How a simulated scan was made (:func:`scan`), and where each of its points came from.
+
+    Attributes
+    ----------
+    positions : ndarray, shape (S, 3)
+        The scanners.
+    step : float
+        Angular step in degrees, in elevation and in azimuth (a scanner above, below or inside the
+        scene's box turns all the way round and rounds its azimuth step down to a whole number of steps
+        per turn).
+    noise, range_noise : float
+        Each point was moved along its ray by N(0, sigma^2), ``sigma = noise + range_noise * range``.
+    quantum : float or None
+        Coordinates are whole multiples of this (None: not quantised).
+    ground : float or None
+        Height of the ground plane (None: no ground).
+    scanner : ndarray of int, shape (N,)
+        Index into ``positions`` of the scanner that saw each point.
+    range : ndarray, shape (N,)
+        Distance from that scanner to the surface along the ray (before the noise).
+    rays : int
+        Rays cast: the grid directions that meet the scene's bounding box.
+    dropped : int
+        Rays that met the mesh of a tube but not the true surface within reach of it: they graze a
+        silhouette (or touch it, a ray tangent to a pipe); a few per ten thousand.
+    """
+
+    positions: np.ndarray
+    step: float
+    noise: float
+    range_noise: float
+    quantum: float | None
+    ground: float | None
+    scanner: np.ndarray
+    range: np.ndarray
+    rays: int
+    dropped: int
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """Standard deviation of each point's noise along its ray."""
+        return self.noise + self.range_noise * self.range
+
+
+@dataclass(frozen=True)
+class _Scene:
+    """What a scan looks at: the tubes (loops when ``closed``) and the clutter around them."""
+
+    name: str
+    branches: tuple
+    closed: bool
+    junctions: np.ndarray
+    floor: tuple | None
+    boxes: tuple
+    network: bool
+
+    @property
+    def capped(self) -> tuple[bool, bool]:
+        """Which ends of a tube are closed by their ball: both, unless the tube is closed (a loop)."""
+        return (not self.closed, not self.closed)
+
+
+def _scene(truth, options: dict) -> _Scene:
+    """The scene of ``truth``: a name of SURFACES or NETWORKS, a SyntheticTube or a SyntheticNetwork."""
+    if isinstance(truth, str) and truth in NETWORKS:
+        layout = _build(truth, options)
+        return _Scene(truth, layout.branches, False, np.asarray(layout.junctions, float).reshape(-1, 3),
+                      layout.floor, layout.boxes, True)
+    if options:
+        raise InputError(f"option {next(iter(options))!r} is an option of a network's builder; "
+                         f"{truth if isinstance(truth, str) else type(truth).__name__!r} takes none")
+    if isinstance(truth, SyntheticNetwork):
+        return _Scene(truth.name, tuple(truth.branches), False, np.asarray(truth.junctions, float).reshape(-1, 3),
+                      truth.floor, tuple(truth.boxes), True)
+    if isinstance(truth, SyntheticTube):
+        return _Scene(truth.name, (SyntheticBranch(truth.spine, truth.radius),), bool(truth.closed),
+                      np.empty((0, 3)), None, (), False)
+    if isinstance(truth, str):
+        choice(truth, "surface or network name", (*SURFACES, *NETWORKS))
+        spine_f, radius_f, closed, _, _ = SURFACES[truth]
+        return _Scene(truth, (SyntheticBranch(spine_f(), radius_f()),), closed, np.empty((0, 3)), None, (), False)
+    raise InputError("scan needs a name of SURFACES or NETWORKS, a SyntheticTube or a SyntheticNetwork, "
+                     f"got {type(truth).__name__}")
+
+
+def _scene_box(scene: _Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Low and high corners of the bounding box of the scene's tubes, floor and boxes."""
+    lo, hi = _footprint(_Layout(scene.branches, scene.junctions, boxes=scene.boxes))
+    if scene.floor is not None:
+        x0, x1, y0, y1, z = scene.floor
+        lo, hi = np.minimum(lo, [x0, y0, z]), np.maximum(hi, [x1, y1, z])
+    return lo, hi
+
+
+def _scanner_positions(positions, lo: np.ndarray, hi: np.ndarray, size: float) -> np.ndarray:
+    """The scanners: ``positions`` as given, or that many placed by the default rule (see :func:`scan`)."""
+    if positions is None:
+        positions = 1
+    if isinstance(positions, (int, np.integer)) and not isinstance(positions, bool):
+        if positions < 1:
+            raise InputError(f"positions must be a number of scanners >= 1 or an array of shape (S, 3), "
+                             f"got {positions!r}")
+        centre = (lo + hi) / 2
+        # Across the shorter horizontal side, from the low side, turned by SCANNER_TURN.
+        across = -90.0 if hi[0] - lo[0] >= hi[1] - lo[1] else 180.0
+        angle = np.radians(across + SCANNER_TURN + 360.0 * np.arange(int(positions)) / int(positions))
+        xy = centre[:2] + SCANNER_DISTANCE * size * np.column_stack([np.cos(angle), np.sin(angle)])
+        return np.column_stack([xy, np.full(len(xy), centre[2])])
+    try:
+        array = np.array(positions, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"positions must be a number of scanners or an array of shape (S, 3), "
+                         f"got {positions!r}") from None
+    if array.ndim == 1 and array.shape == (3,):
+        array = array[None]
+    if array.ndim != 2 or array.shape[1] != 3 or not len(array) or not np.all(np.isfinite(array)):
+        raise InputError(f"positions must be a number of scanners or a finite array of shape (S, 3), got an "
+                         f"array of shape {array.shape}")
+    return array
+
+
+@dataclass(frozen=True)
+class _Fan:
+    """A scanner's rays: from ``origin`` on a regular grid of azimuth ``azimuth0 + i * azimuth_step``
+    (from +x towards +y) and elevation ``elevation0 + j * elevation_step`` (from the horizontal plane
+    up), in radians, for ``i < n_azimuth`` and ``j < n_elevation``.  Ray ``k`` is ``j * n_azimuth + i``.
+    A fan that ``wraps`` covers the full turn: ``n_azimuth * azimuth_step`` is 2 pi."""
+
+    origin: np.ndarray
+    azimuth0: float
+    azimuth_step: float
+    n_azimuth: int
+    elevation0: float
+    elevation_step: float
+    n_elevation: int
+    wraps: bool = False
+
+    @property
+    def size(self) -> int:
+        """Number of rays."""
+        return self.n_azimuth * self.n_elevation
+
+    def directions(self, rays: np.ndarray | None = None) -> np.ndarray:
+        """Unit directions of the rays ``rays`` (default all), shape (len(rays), 3)."""
+        k = np.arange(self.size) if rays is None else np.asarray(rays)
+        azimuth = self.azimuth0 + (k % self.n_azimuth) * self.azimuth_step
+        elevation = self.elevation0 + (k // self.n_azimuth) * self.elevation_step
+        flat = np.cos(elevation)
+        return np.column_stack([flat * np.cos(azimuth), flat * np.sin(azimuth), np.sin(elevation)])
+
+
+def _fan(origin: np.ndarray, lo: np.ndarray, hi: np.ndarray, step: float) -> _Fan:
+    """The rays from ``origin`` on the grid of angular ``step`` (radians) that cover the box [lo, hi]:
+    azimuth and elevation whole multiples of ``step``, between the bounds of the box's directions."""
+    near_xy = np.clip(origin[:2], lo[:2], hi[:2])
+    corners = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
+    d_min = float(np.linalg.norm(near_xy - origin[:2]))
+    d_max = float(np.linalg.norm(corners - origin[:2], axis=1).max())
+    # atan2(dz, dh) grows with dz; it falls with dh above the scanner and grows with it below.
+    top, bottom = hi[2] - origin[2], lo[2] - origin[2]
+    high = np.arctan2(top, d_min if top > 0 else d_max)
+    low = np.arctan2(bottom, d_min if bottom < 0 else d_max)
+    j0, j1 = int(np.ceil(low / step - 1e-9)), int(np.floor(high / step + 1e-9))
+    n_elevation = max(j1 - j0 + 1, 0)
+    if d_min == 0:  # above, below or inside the box: every azimuth
+        n = int(np.ceil(2 * np.pi / step - 1e-9))
+        return _Fan(origin, 0.0, 2 * np.pi / n, n, j0 * step, step, n_elevation, wraps=True)
+    middle = np.arctan2(*((lo[:2] + hi[:2]) / 2 - origin[:2])[::-1])
+    around = middle + np.mod(np.arctan2(corners[:, 1] - origin[1], corners[:, 0] - origin[0]) - middle + np.pi,
+                             2 * np.pi) - np.pi
+    i0, i1 = int(np.ceil(around.min() / step - 1e-9)), int(np.floor(around.max() / step + 1e-9))
+    return _Fan(origin, i0 * step, step, max(i1 - i0 + 1, 0), j0 * step, step, n_elevation)
+
+
+def _through_box(origin: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """True for each ray that meets the box [lo, hi] (the slab test)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / directions
+        a, b = (lo - origin) * inverse, (hi - origin) * inverse
+    enter = np.nanmax(np.fmin(a, b), axis=1)
+    leave = np.nanmin(np.fmax(a, b), axis=1)
+    return leave >= np.maximum(enter, 0.0)
+
+
+def _rectangle(corner, e1, e2) -> np.ndarray:
+    """The rectangle ``corner + [0, 1] e1 + [0, 1] e2`` as two triangles, shape (2, 3, 3)."""
+    c, e1, e2 = (np.asarray(v, float) for v in (corner, e1, e2))
+    return np.array([[c, c + e1, c + e1 + e2], [c, c + e1 + e2, c + e2]])
+
+
+def _dome(rim: np.ndarray, centre: np.ndarray, r: float, axis: np.ndarray) -> np.ndarray:
+    """The part of the sphere (``centre``, ``r``) beyond the circle ``rim`` (its vertices, in order),
+    towards ``axis``: triangles joined to the rim's vertices, so that the tube they close is watertight."""
+    w = (rim - centre) / r
+    polar = float(np.arccos(np.clip(np.mean(w @ axis), -1.0, 1.0)))
+    across = w - (w @ axis)[:, None] * axis
+    across /= np.linalg.norm(across, axis=1, keepdims=True)
+    n_rings = max(2, int(np.ceil(polar / (2 * np.pi / len(rim)))))
+    rings = [rim]
+    for k in range(1, n_rings):
+        angle = polar * (1 - k / n_rings)
+        rings.append(centre + r * (np.cos(angle) * axis + np.sin(angle) * across))
+    pole = centre + r * axis
+    j, nxt = np.arange(len(rim)), np.roll(np.arange(len(rim)), -1)
+    triangles = []
+    for a, b in zip(rings, rings[1:]):
+        triangles += [np.stack([a[j], a[nxt], b[nxt]], 1), np.stack([a[j], b[nxt], b[j]], 1)]
+    triangles.append(np.stack([rings[-1][j], rings[-1][nxt], np.broadcast_to(pole, (len(rim), 3))], 1))
+    triangles = np.concatenate(triangles)
+    # Outward: the normal of each triangle points away from the centre.
+    normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    inward = np.einsum("ij,ij->i", normal, triangles.mean(axis=1) - centre) < 0
+    triangles[inward] = triangles[inward][:, ::-1]
+    return triangles
+
+
+def _scene_mesh(scene: _Scene, ground: tuple | None) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles of the scene, shape (F, 3, 3), and the branch of each (-1 on floor, boxes and ground).
+
+    Each tube is closed at its ends by a dome joined to its end ring, so no ray gets into it."""
+    from .surface import surface_mesh
+
+    triangles, owner = [], []
+
+    def add(tris, branch):
+        triangles.append(tris)
+        owner.append(np.full(len(tris), branch, dtype=np.int64))
+
+    for b, branch in enumerate(scene.branches):
+        vertices, faces = surface_mesh(branch.spine, branch.radius, closed=scene.closed, caps=False,
+                                       n_around=SCAN_MESH_AROUND)
+        add(vertices[faces], b)
+        for end, capped in enumerate(scene.capped):
+            if capped:  # the end ring (the first or last SCAN_MESH_AROUND vertices) closed by its ball
+                t = float(end)
+                rim = vertices[:SCAN_MESH_AROUND] if end == 0 else vertices[-SCAN_MESH_AROUND:]
+                tangent = branch.spine.derivative()(t)
+                axis = (1.0 if end else -1.0) * tangent / np.linalg.norm(tangent)
+                add(_dome(rim, branch.spine(t), float(branch.radius(t)), axis), b)
+    rectangles = []
+    if scene.floor is not None:
+        x0, x1, y0, y1, z = scene.floor
+        rectangles.append(_rectangle([x0, y0, z], [x1 - x0, 0, 0], [0, y1 - y0, 0]))
+    for lo, hi in scene.boxes:
+        dx, dy, dz = np.asarray(hi, float) - np.asarray(lo, float)
+        for corner, e1, e2 in (([lo[0], lo[1], hi[2]], [dx, 0, 0], [0, dy, 0]), (lo, [dx, 0, 0], [0, dy, 0]),
+                               (lo, [0, dy, 0], [0, 0, dz]), ([hi[0], lo[1], lo[2]], [0, dy, 0], [0, 0, dz]),
+                               (lo, [dx, 0, 0], [0, 0, dz]), ([lo[0], hi[1], lo[2]], [dx, 0, 0], [0, 0, dz])):
+            rectangles.append(_rectangle(corner, e1, e2))
+    if ground is not None:
+        x0, x1, y0, y1, z = ground
+        rectangles.append(_rectangle([x0, y0, z], [x1 - x0, 0, 0], [0, y1 - y0, 0]))
+    if rectangles:
+        add(np.concatenate(rectangles), -1)
+    return np.concatenate(triangles), np.concatenate(owner)
+
+
+def _derivative(spline: BSpline, nu: int) -> BSpline | None:
+    """The ``nu``-th derivative of ``spline``, None where it vanishes (degree below ``nu``)."""
+    return spline.derivative(nu) if spline.k >= nu else None
+
+
+def _value(spline: BSpline | None, t: np.ndarray) -> np.ndarray:
+    return np.zeros(len(t)) if spline is None else np.asarray(spline(t), float).reshape(-1)
+
+
+def _onto_tube(tube: _Tube, closed: bool, capped, origin, directions, start, outward):
+    """Where each ray meets the true surface of ``tube`` near the mesh's hit at distance ``start``.
+
+    The surface is the canal surface (the envelope of the spheres) and the balls closing the ``capped``
+    ends; of the roots within reach, the nearest counts.  ``outward`` says whether the rays come from
+    outside the tube.  Returns the distance along each ray, the outward normal there and whether a root
+    was found (on the side the rays come from).
+    """
+    reach = SNAP_REACH * tube.r_max
+    spine, radius = tube.spine, tube.radius
+    d1, d2 = spine.derivative(1), _derivative(spine, 2)
+    r1, r2 = _derivative(radius, 1), _derivative(radius, 2)
+    n = len(start)
+    best = np.full(n, np.inf)
+    normal = np.zeros((n, 3))
+    # The canal surface: F1 = |P(s) - C(t)| - r(t) = 0 and F2 = (P - C) . C' + r' |P - C| = 0 (t is the
+    # parameter of P's characteristic circle), by Newton's method in (s, t).
+    s = start.copy()
+    t = tube.tree.query(origin + s[:, None] * directions)[1] / (tube.tree.n - 1)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for iteration in range(SNAP_STEPS + 1):
+            d = origin + s[:, None] * directions - spine(t)
+            length = np.linalg.norm(d, axis=1)
+            c1, c2 = d1(t), (np.zeros((n, 3)) if d2 is None else d2(t))
+            r, dr, ddr = _value(radius, t), _value(r1, t), _value(r2, t)
+            du, dc1 = np.einsum("ij,ij->i", d, directions), np.einsum("ij,ij->i", d, c1)
+            f1, f2 = length - r, dc1 + dr * length
+            if iteration == SNAP_STEPS:
+                break
+            j11, j12 = du / length, -dc1 / length - dr
+            j21 = np.einsum("ij,ij->i", directions, c1) + dr * du / length
+            j22 = -np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", d, c2) + ddr * length - dr * dc1 / length
+            det = j11 * j22 - j12 * j21
+            s = s - (f1 * j22 - f2 * j12) / det
+            t = t - (j11 * f2 - j21 * f1) / det
+            t = np.mod(t, 1.0) if closed else np.clip(t, -0.05, 1.05)
+        speed = np.linalg.norm(c1, axis=1)
+        ok = ((np.abs(f1) <= SNAP_TOLERANCE * r) & (np.abs(f2) <= SNAP_TOLERANCE * r * speed)
+              & (np.abs(s - start) <= reach) & np.isfinite(s))
+        if not closed:
+            ok &= (t >= 0) & (t <= 1)
+        unit = d / length[:, None]
+        ok &= (np.einsum("ij,ij->i", unit, directions) < 0) == outward
+        best[ok], normal[ok] = s[ok], unit[ok]
+    # The balls at the closed ends: only their part beyond the end's characteristic circle is surface.
+    for end in (0, 1):
+        if not capped[end]:
+            continue
+        t_end = float(end)
+        centre, r = spine(t_end), float(radius(t_end))
+        velocity = d1(t_end)
+        tangent = velocity / np.linalg.norm(velocity)
+        rho = float(_value(r1, np.array([t_end]))[0]) / np.linalg.norm(velocity)
+        sign = 1.0 if end else -1.0
+        b = (centre - origin) @ directions.T
+        disc = b**2 - (np.sum((centre - origin) ** 2) - r * r)
+        root = np.sqrt(np.maximum(disc, 0.0))
+        for s_ball in (b - root, b + root):
+            unit = (origin + s_ball[:, None] * directions - centre) / r
+            ok = ((disc >= 0) & (np.abs(s_ball - start) <= reach) & (s_ball < best)
+                  & (sign * (unit @ tangent + rho) >= 0)
+                  & ((np.einsum("ij,ij->i", unit, directions) < 0) == outward))
+            best[ok], normal[ok] = s_ball[ok], unit[ok]
+    return best, normal, np.isfinite(best)
+
+
+def _ray_caster(triangles: np.ndarray):
+    """trimesh's Embree ray caster on the triangles (F, 3, 3), each its own face (numbered as given)."""
+    try:
+        import trimesh
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+    except ImportError:
+        raise InputError("simulating a scan needs the 'scan' extra (trimesh with Embree) — "
+                         "pip install 'canalsurf[scan]'") from None
+    faces = np.arange(3 * len(triangles)).reshape(-1, 3)
+    return RayMeshIntersector(trimesh.Trimesh(triangles.reshape(-1, 3), faces, process=False))
+
+
+def _first_hits(caster, triangles: np.ndarray, fan: _Fan) -> tuple[np.ndarray, np.ndarray]:
+    """The first triangle each ray of ``fan`` meets (-1: none) and the distance to it (inf: none).
+
+    Embree works in single precision, so only the triangle is taken from it; the distance is recomputed
+    on that triangle's plane in double precision."""
+    directions = fan.directions()
+    origins = np.broadcast_to(fan.origin, directions.shape)
+    index_tri, index_ray = caster.intersects_id(origins, directions, multiple_hits=False)
+    corner = triangles[index_tri, 0]
+    normal = np.cross(triangles[index_tri, 1] - corner, triangles[index_tri, 2] - corner)
+    along = np.einsum("ij,ij->i", normal, directions[index_ray])
+    ok = along != 0
+    triangle = np.full(fan.size, -1, dtype=np.int64)
+    distance = np.full(fan.size, np.inf)
+    triangle[index_ray[ok]] = index_tri[ok]
+    distance[index_ray[ok]] = np.einsum("ij,ij->i", normal[ok], corner[ok] - fan.origin) / along[ok]
+    return triangle, distance
+
+
+def scan(truth, *, positions=None, step: float | None = None, noise: float | None = None,
+         range_noise: float | None = None, quantum: float | None = None, ground: bool = True, rng=None,
+         max_points: int = MAX_SCAN_RAYS, **options):
+    """Simulate a terrestrial laser scan of a surface or network: one-sided, occluded, with its ground truth.
+
+    The scene (the tubes, the network's floor and boxes, and a ground plane) is triangulated; each
+    scanner sends rays on a regular grid of azimuth and elevation with the angular ``step`` (so the
+    spacing of the points grows with their range) towards the scene's bounding box, and every ray keeps
+    its first hit: a tube hides its own far side and whatever stands behind it.  The rays are cast by
+    Embree through trimesh's ray module (``RayMeshIntersector``, first hits only; the 'scan' extra).  A
+    hit on a tube is then moved from the mesh to the true surface along the ray (to about 1e-9 of the
+    radius), so a noise-free scan lies exactly on the truth.  Each point is then
+    moved along its ray by Gaussian noise of standard deviation ``noise + range_noise * range``, and its
+    coordinates are rounded to whole multiples of ``quantum`` as a LAS file stores them.
+
+    Each tube is closed at its ends by the ball there (a dished end, like a pipe cap; at a junction the
+    same ball as in :func:`make_network`): the scene's tubes are the union of their spheres, the set
+    ``min_t |P - C(t)| - r(t) <= 0`` of each branch, so no ray sees into a tube and every tube point of a
+    noise-free scan lies on it.  (:func:`make_tube` and :func:`make_network` leave free ends open.)
+
+    Parameters
+    ----------
+    truth : str, SyntheticTube or SyntheticNetwork
+        A name of ``SURFACES`` or ``NETWORKS``, or a generated cloud, whose truth (spine and radius, or
+        branches, junctions, floor and boxes) is scanned; its points are not used.
+    positions : int or array_like of shape (S, 3), optional
+        The scanners, or how many to place by the default rule (default 1; one to three is usual): level
+        with the middle of the scene's box (ground included), ``SCANNER_DISTANCE`` = 2 scene sizes (the
+        diagonal of the scene's bounding box) from its centre horizontally; the first across the scene's
+        shorter horizontal side (from -y for a scene longer in x, else from -x) turned by
+        ``SCANNER_TURN`` = 30 degrees, the others evenly around (two face each other).  Given as
+        coordinates (one point of shape (3,) is one scanner), a scanner may stand anywhere, inside the
+        scene or a tube too; one above, below or inside the scene's box turns all the way round.
+    step : float, optional
+        Angular step of the grid, in degrees.  Default: the angle under which ``SCAN_SPACING_PER_RADIUS``
+        = 0.15 of the smallest radius is seen from the nearest scanner at the scene's centre.  The
+        number of rays falls with the square of the step.
+    noise : float, optional
+        Standard deviation of the range noise at range 0, in the scene's units (default
+        ``SCAN_NOISE_PER_RADIUS`` = 1 % of the smallest radius; 0 for a noise-free scan).
+    range_noise : float, optional
+        Growth of the standard deviation with range (noise per unit of range).  Default ``noise`` divided
+        by the range of the scene's centre from the nearest scanner: the noise doubles from the scanner
+        to the scene (0 when ``noise`` is 0).
+    quantum : float, optional
+        Round every coordinate to a whole multiple of this, as LAS files store coordinates (e.g. 0.01 for
+        1 cm in metres); default None, no rounding.
+    ground : bool
+        Put a ground plane under the scene (default True): at the height of the network's floor, else
+        one largest radius below the lowest tube, reaching ``GROUND_MARGIN`` = 0.5 scene sizes beyond the
+        scene's footprint.
+    rng : numpy.random.Generator or int, optional
+        Random generator or seed for the noise (default seed 0: the same call gives the same scan).
+    max_points : int
+        Most rays the scan may cast (so most points it returns), at most ``MAX_SYNTH_POINTS``; default
+        ``MAX_SCAN_RAYS`` = 2 million.  A larger grid is refused before it is allocated.
+    **options
+        Options of a network's builder (``size`` for ``plant``), as in :func:`make_network`.
+
+    Returns
+    -------
+    SyntheticTube or SyntheticNetwork
+        For a surface a :class:`SyntheticTube` (``noise_model="scan"``; ``outlier`` marks the ground
+        points), for a network a :class:`SyntheticNetwork` (``label`` -1 on floor, boxes and ground).
+        ``normals`` are the true normals at the hits, turned towards the scanner that saw them.
+        ``scan`` (:class:`ScanInfo`) holds the settings used and, per point, its scanner and range.
+        Points are in scan order: by scanner, then elevation, then azimuth.
+
+    Raises
+    ------
+    InputError
+        An unknown name or option, an argument out of its range, a grid of more rays than
+        ``max_points``, a scan in which no ray met the scene, or trimesh or embreex not installed.
+
+    Examples
+    --------
+    >>> cloud = scan("fig9-pipe", rng=1)
+    >>> cloud.scan.positions.shape, cloud.noise_model, round(cloud.scan.step, 4)
+    ((1, 3), 'scan', 0.2033)
+    >>> net = scan("t-junction", positions=2, noise=0.0)
+    >>> sorted(set(net.label.tolist()))
+    [-1, 0, 1, 2]
+    """
+    scene = _scene(truth, options)
+    t = np.linspace(0.0, 1.0, 64)
+    radii = np.concatenate([branch.radius(t) for branch in scene.branches])
+    r_min, r_max = float(radii.min()), float(radii.max())
+    lo, hi = _scene_box(scene)
+    size = float(np.linalg.norm(hi - lo))
+    if ground is not True and ground is not False:
+        raise InputError(f"ground must be True or False, got {ground!r}")
+    level = (scene.floor[4] if scene.floor is not None else lo[2] - r_max) if ground else None
+    box_lo = lo.copy() if level is None else np.append(lo[:2], min(lo[2], level))
+    positions = _scanner_positions(positions, box_lo, hi, size)
+    centre = (lo + hi) / 2
+    distance = max(float(np.linalg.norm(positions - centre, axis=1).min()), r_min)
+    step = np.degrees(SCAN_SPACING_PER_RADIUS * r_min / distance) if step is None else _number(step, "step")
+    if not 0 < step <= 90:
+        raise InputError(f"step must be an angle in (0, 90] degrees, got {step!r}")
+    noise = SCAN_NOISE_PER_RADIUS * r_min if noise is None else _number(noise, "noise")
+    if noise < 0:
+        raise InputError(f"noise must be >= 0, got {noise!r}")
+    range_noise = noise / distance if range_noise is None else _number(range_noise, "range_noise")
+    if range_noise < 0:
+        raise InputError(f"range_noise must be >= 0, got {range_noise!r}")
+    if quantum is not None:
+        quantum = _number(quantum, "quantum")
+        if not quantum > 0:
+            raise InputError(f"quantum must be > 0, got {quantum!r}")
+    if isinstance(max_points, bool) or not isinstance(max_points, (int, np.integer)) \
+            or not 1 <= max_points <= MAX_SYNTH_POINTS:
+        raise InputError(f"max_points must be a whole number in [1, {MAX_SYNTH_POINTS:,}], got {max_points!r}")
+    rng = _generator(rng)
+
+    fans = [_fan(p, box_lo, hi, np.radians(step)) for p in positions]
+    n_rays = sum(fan.size for fan in fans)
+    if n_rays > max_points:
+        wider = step * np.sqrt(n_rays / max_points)
+        raise InputError(f"a scan from {len(fans)} scanner{'s' * (len(fans) != 1)} with a step of {step:.4g} "
+                         f"degrees would cast {n_rays:,} rays, more than max_points = {max_points:,}; give a "
+                         f"larger step (about {wider:.3g} degrees or more: the rays fall with its square) or "
+                         "raise max_points")
+
+    if level is not None:
+        margin = GROUND_MARGIN * size
+        ground_rectangle = (lo[0] - margin, hi[0] + margin, lo[1] - margin, hi[1] + margin, level)
+    else:
+        ground_rectangle = None
+    triangles, owner = _scene_mesh(scene, ground_rectangle)
+    face_normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    face_normal /= np.linalg.norm(face_normal, axis=1, keepdims=True)
+    caster = _ray_caster(triangles)
+    tubes = [_Tube.of(branch) for branch in scene.branches]
+    found = []  # per scanner that saw anything: its index, ranges, directions, labels, normals
+    cast = dropped = 0
+    for index, fan in enumerate(fans):
+        if not fan.size:
+            continue
+        hit, reach = _first_hits(caster, triangles, fan)
+        through = _through_box(fan.origin, fan.directions(), box_lo, hi)
+        if fan.wraps:  # straight up or down every azimuth is the same ray: cast it once
+            row = np.arange(fan.size) // fan.n_azimuth
+            pole = np.abs(fan.elevation0 + row * fan.elevation_step) >= np.pi / 2 - 1e-12
+            through &= ~pole | (np.arange(fan.size) % fan.n_azimuth == 0)
+        cast += int(through.sum())
+        rays = np.flatnonzero((hit >= 0) & through)
+        directions = fan.directions(rays)
+        tri, s = hit[rays], reach[rays]
+        label = owner[tri]
+        normal = face_normal[tri].copy()
+        keep = np.ones(len(rays), bool)
+        # Every tube is closed, so a ray meets it from outside unless the scanner stands in it.
+        outside = np.array([tube.depth(fan.origin[None])[0] >= 0 for tube in tubes])
+        for b in np.unique(label[label >= 0]):
+            mine = np.flatnonzero(label == b)
+            s[mine], normal[mine], keep[mine] = _onto_tube(tubes[b], scene.closed, scene.capped, fan.origin,
+                                                           directions[mine], s[mine], outside[b])
+        # Where tubes meet, the mesh of one can stand out of the other by its accuracy: a point inside
+        # another tube belongs on that tube, where the ray enters it.
+        for _ in range(2):
+            holder = np.full(len(s), -1)
+            holder[keep] = _container(fan.origin + s[keep, None] * directions[keep], label[keep], tubes)
+            for c in np.unique(holder[holder >= 0]):
+                moved = np.flatnonzero(holder == c)
+                s[moved], normal[moved], keep[moved] = _onto_tube(
+                    tubes[c], scene.closed, scene.capped, fan.origin, directions[moved], s[moved], outside[c])
+                label[moved] = c
+        holder = np.full(len(s), -1)
+        holder[keep] = _container(fan.origin + s[keep, None] * directions[keep], label[keep], tubes)
+        keep &= holder < 0
+        dropped += int((~keep).sum())
+        s, directions, label, normal = s[keep], directions[keep], label[keep], normal[keep]
+        # Normals towards the scanner (inwards on a tube the scanner stands in).
+        facing = np.einsum("ij,ij->i", normal, directions) > 0
+        normal[facing] *= -1
+        found.append((index, s, directions, label, normal))
+    if not found or not sum(len(f[1]) for f in found):
+        raise InputError(f"no ray of the scan met the scene (step {step:.4g} degrees from {len(positions)} "
+                         "scanner(s)): give a smaller step or place the scanners nearer")
+    scanner = np.concatenate([np.full(len(f[1]), f[0]) for f in found])
+    origin = positions[scanner]
+    s = np.concatenate([f[1] for f in found])
+    directions = np.concatenate([f[2] for f in found])
+    label = np.concatenate([f[3] for f in found])
+    normals = np.concatenate([f[4] for f in found])
+    sigma = noise + range_noise * s
+    points = origin + (s + sigma * rng.standard_normal(len(s)))[:, None] * directions
+    if quantum is not None:
+        points = np.round(points / quantum) * quantum
+    info = ScanInfo(positions, float(step), float(noise), float(range_noise), quantum,
+                    None if level is None else float(level), scanner, s, cast, dropped)
+    if scene.network:
+        return SyntheticNetwork(scene.name, points, normals, label, scene.branches, scene.junctions, float(noise),
+                                scene.floor, scene.boxes, info)
+    branch = scene.branches[0]
+    return SyntheticTube(scene.name, points, normals, branch.spine, branch.radius, scene.closed, float(noise),
+                         "scan", label < 0, float("nan"), info)
