@@ -101,14 +101,14 @@ class _Scan:
 
 @dataclass
 class _BranchFit:
-    """One branch fitted in normalised coordinates."""
+    """One branch fitted in normalised coordinates: ``eq6`` is its Eq. (6) radius, the scale of its
+    fit (how far its ends may grow per pass, the floor of its outlier cut)."""
 
     kind: str
     spine: BSpline
     radius: BSpline
     closed: bool
     ends: tuple
-    reach: float
     eq6: float
     segments: tuple
     residual: np.ndarray
@@ -441,7 +441,7 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
             samples = fits["canal"].radius(np.linspace(0, 1, 200))
             kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(points), rseg + 2, samples) else "pipe"
         fit = fits[kind]
-        return _BranchFit(kind, fit.spine, fit.radius, closed, (None, None), eq6, eq6, (nseg, rseg),
+        return _BranchFit(kind, fit.spine, fit.radius, closed, (None, None), eq6, (nseg, rseg),
                           fit.residual, fit.t, points)
     if kind == "auto":
         w, r_v, u = guess["w"], guess["r_v"], guess["u"]
@@ -452,12 +452,12 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
     if kind == "pipe":
         radius_fn = constant_spline(eq6)
     t, residual = footpoints(points, spine, radius_fn, closed=closed)
-    return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, eq6, (nseg, rseg), residual, t, points)
+    return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
 
 
 def _quality(fit: _BranchFit) -> dict:
     """Inlier RMS distance, mean radius and out-of-roundness of a fitted branch (normalised units)."""
-    stray = is_stray(fit.residual, fit.reach)
+    stray = is_stray(fit.residual, fit.eq6)
     mean_r = float(np.mean(fit.radius(np.linspace(0, 1, 200))))
     inlier_rms = float(np.sqrt(np.mean(fit.residual[~stray] ** 2))) if (~stray).any() else np.inf
     out_of_round = roundness(fit.points[~stray], fit.spine, fit.t[~stray], fit.residual[~stray])
@@ -619,7 +619,7 @@ def _check_and_describe(scan: _Scan, fits: list, noise: float):
     branches = []
     for i, fit in enumerate(fits):
         t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
-        stray = is_stray(residual, fit.reach)
+        stray = is_stray(residual, fit.eq6)
         near = ~stray
         coverage = angular_coverage(fit.points[near], fit.spine, t[near])
         coverage = float(np.median(coverage)) if len(coverage) else float("nan")
