@@ -77,8 +77,9 @@ def _on_a_terminal(argv: list[str]) -> tuple[int, str]:
     termios = pytest.importorskip("termios")
     fcntl = pytest.importorskip("fcntl")
     master, slave = os.openpty()
-    # 24 rows, 100 columns: tqdm sizes its bar to the terminal's width
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+    # 24 rows, 240 columns: tqdm sizes its bar to the terminal's width and cuts what does not fit, and
+    # the line (a temporary path, a rate of thousands of stages per second, the stage) must fit whole
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 240, 0, 0))
     received = []
 
     def drain():  # read while main runs: a full terminal buffer would block the writer
