@@ -38,6 +38,7 @@ import time
 import zipfile
 from pathlib import Path
 
+import crc32c
 import numpy as np
 
 #: Address-space limit of the child that reads the files: a reader that allocates what a corrupted
@@ -306,15 +307,6 @@ def _npz_member_header(raw: bytes, rng) -> tuple[bytes, str]:
     return out.getvalue(), f"{name} rows -> {rows}"
 
 
-def _crc32c(data: bytes) -> int:
-    crc = 0xFFFFFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0x82F63B78 if crc & 1 else crc >> 1
-    return crc ^ 0xFFFFFFFF
-
-
 def _e57_number(raw: bytes, rng, pattern: bytes = rb'(?:recordCount|fileOffset)="(\d+)"|>(-?\d[\d.e+-]*)<'):
     """Change a number of the E57 XML in place (same length) and re-compute the page checksums.
 
@@ -332,7 +324,7 @@ def _e57_number(raw: bytes, rng, pattern: bytes = rb'(?:recordCount|fileOffset)=
     new = ("".join(map(str, digits)) if rng.random() < 0.7 else "9" * len(old)).encode()
     logical[m.start(group):m.end(group)] = new
     pages = [bytes(logical[i:i + 1020]) for i in range(0, len(logical), 1020)]
-    return (b"".join(p + struct.pack(">I", _crc32c(p)) for p in pages),
+    return (b"".join(p + struct.pack(">I", crc32c.crc32c(p)) for p in pages),
             f"XML number {old.decode()} -> {new.decode()}")
 
 

@@ -20,6 +20,7 @@ import sys
 import time
 import zipfile
 
+import crc32c
 import numpy as np
 import pytest
 
@@ -225,15 +226,6 @@ def test_las_1_4_round_trip_still_reads(tmp_path):
 # E57: a header that claims more points than stored, a pose that is not a rotation
 
 
-def _crc32c(data: bytes) -> int:
-    crc = 0xFFFFFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0x82F63B78 if crc & 1 else crc >> 1
-    return crc ^ 0xFFFFFFFF
-
-
 def _edit_e57(path, old: bytes, new: bytes) -> None:
     """Replace ``old`` by ``new`` (same length) in an E57 file, re-computing its page checksums.
 
@@ -245,7 +237,7 @@ def _edit_e57(path, old: bytes, new: bytes) -> None:
     at = logical.index(old)
     logical[at:at + len(old)] = new
     pages = [bytes(logical[i:i + 1020]) for i in range(0, len(logical), 1020)]
-    path.write_bytes(b"".join(p + struct.pack(">I", _crc32c(p)) for p in pages))
+    path.write_bytes(b"".join(p + struct.pack(">I", crc32c.crc32c(p)) for p in pages))
 
 
 def _e57(path, points, translation=(0.0, 0.0, 0.0)):
