@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import MAX_SHRINK_PER_RADIUS, PATIENCE, PEAK_DROP, PEAK_MIN_SHARE
+from .constants import PATIENCE, PEAK_DROP, PEAK_MIN_SHARE
 from .errors import InputError
 
 __all__ = ["ShrinkResult", "shrink", "shrink_by_concentration", "break_mask"]
