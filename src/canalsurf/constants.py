@@ -106,3 +106,7 @@ ONE_SIDED_DEGREES = 300.0
 MIN_CONCENTRATION = 3.0
 #: Fewer points than this share reaching the spine means the shape is not a tube.
 MIN_KEPT_SHARE = 0.3
+
+#: Points within this many times the scan's noise of a large plane found among the flat points (and
+#: facing along its normal) are clutter: 3 sigma keeps 99.7 % of a plane's own points.
+PLANE_TOLERANCE_NOISES = 3.0

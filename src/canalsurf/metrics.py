@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from .spine import sample_arclength
 
-__all__ = ["closest_point_distance", "paper_distance", "radius_error", "compare", "compare_network",
+__all__ = ["model_error", "closest_point_distance", "paper_distance", "radius_error", "compare", "compare_network",
            "angular_coverage"]
 
 #: Samples per curve for the distance measures (dense enough that sampling error is < 1e-4 length).
@@ -239,6 +239,56 @@ def compare_network(network, truth) -> dict:
         "clutter_right": float(np.mean(label[clutter] < 0)) if clutter.any() else 1.0,
         "tube_right": float(np.mean(label[~clutter] == expected[~clutter])),
     }
+
+
+#: Samples per model branch in :func:`model_error` (the truth is sampled with N_DENSE).
+MODEL_ERROR_SAMPLES = 2000
+
+
+def model_error(network, truth_branches, truth_junctions=()) -> list:
+    """How far each branch of a model lies from the truth: the model's own claims checked.
+
+    Each model branch is sampled densely; every sample is matched to the nearest point of any true
+    spine, and its distance and radius error there are taken relative to the true radius.  Samples
+    within ``JUNCTION_MARGIN_RADII`` radii of a model or true junction are left out.
+
+    Parameters
+    ----------
+    network : Network
+    truth_branches : list
+        Objects with ``spine`` and ``radius`` (``SyntheticBranch``, ``SyntheticTube``).
+    truth_junctions : array_like, shape (J, 3)
+
+    Returns
+    -------
+    list of dict
+        Per model branch: ``id``, ``quality``, ``spine_mean`` and ``spine_max`` (distances in true radii),
+        ``radius_mean`` (mean relative radius error); NaN when all of a branch is near junctions.
+    """
+    dense = []
+    for tb in truth_branches:
+        t, pts = sample_arclength(tb.spine, N_DENSE)
+        dense.append((pts, tb.radius(t)))
+    tree = cKDTree(np.concatenate([p for p, _ in dense]))
+    true_r = np.concatenate([r for _, r in dense])
+    junctions = np.concatenate([np.asarray(truth_junctions, float).reshape(-1, 3),
+                                np.array([j.point for j in network.junctions]).reshape(-1, 3)])
+    out = []
+    for b in network.branches:
+        t, pts = sample_arclength(b.spine, MODEL_ERROR_SAMPLES)
+        d, i = tree.query(pts)
+        r_true = true_r[i]
+        away = np.ones(len(t), bool)
+        for j in junctions:
+            away &= np.linalg.norm(pts - j, axis=1) > JUNCTION_MARGIN_RADII * r_true
+        rel = d[away] / r_true[away]
+        rad = np.abs(b.radius(t[away]) - r_true[away]) / r_true[away]
+        nan = float("nan")
+        out.append({"id": b.id, "quality": b.diagnostics.get("quality"),
+                    "spine_mean": float(rel.mean()) if away.any() else nan,
+                    "spine_max": float(rel.max()) if away.any() else nan,
+                    "radius_mean": float(rad.mean()) if away.any() else nan})
+    return out
 
 
 #: Angular sectors and points per stretch of :func:`roundness`.

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from .constants import NORMAL_NEIGHBOURS, ORIENT_LINK_REACH, ORIENT_NEIGHBOURS
 
-__all__ = ["estimate_normals", "orient_normals", "point_inward"]
+__all__ = ["estimate_normals", "orient_normals", "point_inward", "on_planes"]
 
 
 def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -129,3 +129,62 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
     part_vote = np.bincount(label[rows], weights=_divergence(points, oriented, rows, cols), minlength=n_parts)
     oriented *= np.where(part_vote[label] < 0, -1.0, 1.0)[:, None]
     return oriented
+
+
+#: RANSAC trials per plane in :func:`on_planes` (seeded): with half of the flat points on the plane,
+#: 64 trials miss it with probability (1 - 1/8)^64 < 1e-3.
+PLANE_TRIALS = 64
+#: Planes looked for, largest first (ground, a wall or two, a sign).
+MAX_PLANES = 4
+#: A plane counts when this share of the flat points (and at least MIN_PLANE_POINTS) lie on it.
+MIN_PLANE_SHARE = 0.05
+MIN_PLANE_POINTS = 30
+#: A point on a plane must face along its normal within this many degrees.
+PLANE_NORMAL_DEGREES = 30.0
+
+
+def on_planes(points: np.ndarray, normals: np.ndarray, flat: np.ndarray, tolerance: float) -> np.ndarray:
+    """Indices of the points that lie on large planes (ground, walls, signs) found among ``flat``.
+
+    Planes are found one after the other by RANSAC over the points of ``flat`` (indices of points
+    whose surface is flat); every point within ``tolerance`` of a plane whose normal is within
+    ``PLANE_NORMAL_DEGREES`` of the plane's is on it -- also points whose neighbourhood reaches a
+    tube and so reads as curved, which would otherwise join the tube's fit.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+    flat : ndarray of int
+    tolerance : float
+        Largest distance from a plane, e.g. three times the scan's noise.
+
+    Returns
+    -------
+    ndarray of int
+    """
+    rng = np.random.default_rng(0)
+    left = np.asarray(flat)
+    found = []
+    cos_min = np.cos(np.radians(PLANE_NORMAL_DEGREES))
+    for _ in range(MAX_PLANES):
+        need = max(MIN_PLANE_POINTS, MIN_PLANE_SHARE * len(flat))
+        if len(left) < need or not tolerance > 0:
+            break
+        best, best_count = None, 0
+        for _ in range(PLANE_TRIALS):
+            a, b, c = points[rng.choice(left, 3, replace=False)]
+            n = np.cross(b - a, c - a)
+            norm = np.linalg.norm(n)
+            if norm == 0:
+                continue
+            n /= norm
+            count = int((np.abs((points[left] - a) @ n) < tolerance).sum())
+            if count > best_count:
+                best, best_count = (a, n), count
+        if best is None or best_count < need:
+            break
+        a, n = best
+        on = np.flatnonzero((np.abs((points - a) @ n) < tolerance) & (np.abs(normals @ n) > cos_min))
+        found.append(on)
+        left = np.setdiff1d(left, on)
+    return np.unique(np.concatenate(found)) if found else np.empty(0, int)

@@ -25,7 +25,7 @@ from .errors import InputError, ReconstructionError
 from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
-from .normals import estimate_normals, point_inward
+from .normals import estimate_normals, on_planes, point_inward
 from .quality import branch_quality, scan_quality, support_gap
 from .radius import curvature_radius, prefer_canal, principal_curvature
 from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
@@ -114,6 +114,7 @@ class _BranchFit:
     residual: np.ndarray
     t: np.ndarray
     points: np.ndarray
+    kappa: np.ndarray | None = None
 
 
 def _segments(length: float, spacing: float, n_points: int) -> int:
@@ -189,7 +190,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         raise InputError(f"refine must be True or False, got {refine!r}")
     scan = _prepare(points, normals, k)
     with timer("normals"):
-        scan, nrm, r0, area_per_point, curved, noise = _normals(scan, k, flat_out=stop == "auto")
+        scan, nrm, r0, area_per_point, curved, noise, kappa = _normals(scan, k, flat_out=stop == "auto")
     algo = "pipe" if kind == "pipe" else "canal"
     p = _parameters(r0, area_per_point, scan.scale, R=R, delta=delta, mu=mu, tau=tau, H=H, algo=algo,
                     stop=stop)
@@ -202,7 +203,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     with timer("skeleton"):
         skel = skeletonize(thin, r_i, spacing=C.ORDER_VOXEL_PER_H * p["H"])
     with timer("fit"):
-        skel, fits = _fit_network(scan.fit_pts, skel, kind=kind, refine=refine, noise=noise)
+        skel, fits = _fit_network(scan.fit_pts, skel, kind=kind, refine=refine, noise=noise,
+                                  **_fit_support(scan, curved, kappa))
     with timer("junctions"):
         fits, junction_points = _join_at_junctions(fits, skel)
     with timer("residual"):
@@ -292,14 +294,30 @@ def _normals(scan: _Scan, k, *, flat_out: bool):
     if not np.isfinite(r0) or r0 > 10:
         raise ReconstructionError("the surface is flat (no curvature around a spine) — "
                                   "the input is not a tube")
-    noise = _scan_noise(scan.pts, nbr)
     if not flat_out:
-        return scan, nrm, r0, area_per_point, np.arange(len(scan.pts)), noise
-    curved = np.flatnonzero(kappa * C.MAX_SHRINK_PER_RADIUS * r0 >= 1.0)
-    if len(curved) < MIN_POINTS:
-        raise ReconstructionError("the surface is flat (no curvature around a spine) — "
-                                  "the input is not a tube")
-    return scan, nrm, r0, area_per_point, curved, noise
+        curved = np.arange(len(scan.pts))
+    else:
+        curved = np.flatnonzero(kappa * C.MAX_SHRINK_PER_RADIUS * r0 >= 1.0)
+        if len(curved) < MIN_POINTS:
+            raise ReconstructionError("the surface is flat (no curvature around a spine) — "
+                                      "the input is not a tube")
+    # The tubes' noise, not the floor's: a quantised floor is exactly flat and would read as no noise.
+    noise = max(_scan_noise(scan.pts, nbr[curved]), quantisation_noise(scan.all_pts))
+    if flat_out:
+        # Points on a large plane (ground, a wall, a sign) are clutter even where their neighbourhood
+        # reaches a tube and reads as curved.
+        curved = np.setdiff1d(curved, on_planes(scan.pts, nrm, np.setdiff1d(np.arange(len(scan.pts)), curved),
+                                                C.PLANE_TOLERANCE_NOISES * noise))
+    return scan, nrm, r0, area_per_point, curved, noise, kappa
+
+
+#: Coordinates of this many points (a seeded sample) are searched for a common grid step.
+QUANTUM_SAMPLE = 5000
+#: Steps between sorted distinct coordinates below this share of their range are rounding of
+#: arithmetic (the normalisation), not a grid.
+QUANTUM_RESOLUTION = 1e-9
+#: Every coordinate must lie within this share of a step of the grid for the axis to count as gridded.
+QUANTUM_TOLERANCE = 1e-3
 
 
 def _scan_noise(points: np.ndarray, nbr: np.ndarray) -> float:
@@ -308,10 +326,35 @@ def _scan_noise(points: np.ndarray, nbr: np.ndarray) -> float:
     Independent of any tube fitted, it is what a good fit's residual must come close to (a little
     above on curved patches of sparse scans, whose planes cannot follow the curvature).
     """
+    if not len(nbr):
+        return 0.0
     patch = points[nbr]
     centred = patch - patch.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", centred, centred) / patch.shape[1]
     return float(np.sqrt(max(np.median(np.linalg.eigvalsh(cov)[:, 0]), 0.0)))
+
+
+def quantisation_noise(points: np.ndarray, *, sample: int = QUANTUM_SAMPLE) -> float:
+    """The noise that rounding coordinates to a grid adds along a surface normal (0 if not rounded).
+
+    LAS and many scanners' files store coordinates as whole multiples of a step q per axis (1 mm,
+    1 cm, ...).  The rounding error is uniform on [-q/2, q/2] along each axis, variance q^2 / 12;
+    along a normal of random direction that averages to sum(q_a^2) / 36.  A quantised floor or wall
+    has no scatter at all about its plane, so this is the least noise a fit can be held to.
+    """
+    pts = points[np.random.default_rng(0).permutation(len(points))[:sample]]
+    variance = 0.0
+    for values in pts.T:
+        levels = np.unique(values)
+        steps = np.diff(levels)
+        steps = steps[steps > QUANTUM_RESOLUTION * np.ptp(values)]
+        if not len(steps):
+            continue
+        q = steps.min()
+        offsets = (levels - levels[0]) / q
+        if np.all(np.abs(offsets - np.round(offsets)) < QUANTUM_TOLERANCE):
+            variance += q * q / 36.0
+    return float(np.sqrt(variance))
 
 
 def _parameters(r0, area_per_point, scale, *, R, delta, mu, tau, H, algo, stop) -> dict:
@@ -393,14 +436,28 @@ def _first_guess(branch: SkeletonBranch) -> dict:
             "u": u, "r_v": branch.radius, "w": w}
 
 
-def _assign(points: np.ndarray, guesses: list, junctions: np.ndarray, skel: Skeleton) -> list:
+def _fit_support(scan: _Scan, curved: np.ndarray, kappa: np.ndarray) -> dict:
+    """For each point of the final fit: whether the surface is curved like a tube there, and its
+    larger principal curvature (those of its nearest point of the stages' subset)."""
+    mask = np.zeros(len(scan.pts), bool)
+    mask[curved] = True
+    if scan.fit_pts is scan.pts:
+        return {"curved": mask, "kappa": kappa}
+    nearest = cKDTree(scan.pts).query(scan.fit_pts, workers=-1)[1]
+    return {"curved": mask[nearest], "kappa": kappa[nearest]}
+
+
+def _assign(points: np.ndarray, guesses: list, junctions: np.ndarray, skel: Skeleton,
+            curved: np.ndarray) -> list:
     """Indices of the points each branch is fitted to.
 
     Each point goes to the branch whose first tube estimate -- continued straight for
     ``ASSIGN_END_RADII`` radii past its open ends, which the thin set may fall short of -- it lies
     nearest, if within ``ASSIGN_RADII`` of that branch's radii; points near a junction go to none
     (their surface belongs to several tubes).  Clutter (a floor under a pipe, a box beside it) is
-    then no part of any fit, however much of the scan it is.
+    then no part of any fit, however much of the scan it is; nor is a point where the surface is
+    flat (``curved`` False): ground beside a pipe that lies near it would otherwise pull a one-sided
+    fit towards a larger radius.
     """
     stand_in = []
     for i, (g, branch) in enumerate(zip(guesses, skel.branches)):
@@ -417,7 +474,8 @@ def _assign(points: np.ndarray, guesses: list, junctions: np.ndarray, skel: Skel
     for j, point in enumerate(junctions):
         largest = max(g["eq6"] for g, b in zip(guesses, skel.branches) if j in b.ends)
         near_junction |= np.linalg.norm(points - point, axis=1) < JUNCTION_EXCLUSION_RADII * largest
-    return [np.flatnonzero((label == i) & ~near_junction) for i in range(len(guesses))]
+    keep = curved & ~near_junction
+    return [np.flatnonzero((label == i) & keep) for i in range(len(guesses))]
 
 
 def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> _BranchFit:
@@ -461,7 +519,17 @@ def _quality(fit: _BranchFit) -> dict:
     mean_r = float(np.mean(fit.radius(np.linspace(0, 1, 200))))
     inlier_rms = float(np.sqrt(np.mean(fit.residual[~stray] ** 2))) if (~stray).any() else np.inf
     out_of_round = roundness(fit.points[~stray], fit.spine, fit.t[~stray], fit.residual[~stray])
-    return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum())}
+    kappa = fit.kappa[~stray] if fit.kappa is not None and (~stray).any() else np.empty(0)
+    curving = 1.0 / np.median(kappa) if len(kappa) and np.median(kappa) > 0 else np.inf
+    return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum()),
+            "curving": float(curving)}
+
+
+#: A branch whose radius exceeds this many times the median curvature radius of its own points
+#: (1 / kappa_max, about the radius on a tube: 0.9 - 1.2 of it on the paper's surfaces, up to 3 times
+#: it on sparse, quantised one-sided scans, where curvature is underestimated) is several thinner
+#: tubes, or a coil, read as one wide tube.
+MAX_RADIUS_PER_CURVING = 2.5
 
 
 def _is_tube(q: dict, noise: float) -> tuple[bool, str]:
@@ -475,21 +543,28 @@ def _is_tube(q: dict, noise: float) -> tuple[bool, str]:
     if q["round"] > MAX_OUT_OF_ROUND * q["radius"]:
         return False, (f"the points are not round about the spine: whole sectors lie "
                        f"{q['round'] / q['radius']:.0%} of the radius off the best tube")
+    if q["radius"] > MAX_RADIUS_PER_CURVING * q["curving"]:
+        return False, (f"the points curve far more tightly (radius {q['curving']:.2g}) than the one tube through "
+                       f"them (radius {q['radius']:.2g}): thinner tubes side by side or a coil, not one tube")
     if q["rms"] > SCAN_NOISE_RATIO * noise and q["rms"] > TUBE_RELATIVE_RESIDUAL * q["radius"]:
         return False, (f"the points misfit the best tube by {q['rms'] / q['radius']:.0%} of its radius, "
-                       f"{q['rms'] / noise:.0f} times the scan's own noise")
+                       + (f"{q['rms'] / noise:.0f} times the scan's own noise" if noise > 0
+                          else "and the scan has no noise"))
     return True, ""
 
 
-def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float):
+def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
+                 curved: np.ndarray, kappa: np.ndarray):
     """Fit every branch; drop those that are no tube and join the branches they separated.
 
-    ``noise`` is the scan's own noise (:func:`_scan_noise`), against which a branch's misfit is judged.
+    ``noise`` is the scan's own noise (:func:`_scan_noise`), against which a branch's misfit is judged;
+    ``curved`` marks the points that may be fitted (:func:`_assign`), ``kappa`` is each point's larger
+    principal curvature (a tube's points curve with its radius).
     """
     fits = [None] * len(skel.branches)
     for _ in range(MAX_FIT_ROUNDS):
         guesses = [_first_guess(b) for b in skel.branches]
-        parts = _assign(points, guesses, skel.junctions, skel)
+        parts = _assign(points, guesses, skel.junctions, skel, curved)
         reason = ""
         for i, (guess, idx) in enumerate(zip(guesses, parts)):
             if fits[i] is None:
@@ -498,6 +573,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                     continue
                 try:
                     fits[i] = _fit_branch(points[idx], guess, kind=kind, refine=refine)
+                    fits[i].kappa = kappa[idx]
                 except ReconstructionError as exc:
                     if len(skel.branches) == 1:
                         raise

@@ -17,10 +17,17 @@ import numpy as np
 
 from .constants import ONE_SIDED_DEGREES
 
-__all__ = ["LEVELS", "branch_quality", "scan_quality", "support_gap"]
+__all__ = ["LEVELS", "CLAIMS", "branch_quality", "scan_quality", "support_gap"]
 
 #: Qualities from best to worst.
 LEVELS = ("good", "check", "poor")
+#: What a quality level claims of a branch, against the truth (shares of the true radius): the mean
+#: distance of the model's spine from the true spine, and the model's mean radius error -- both away
+#: from junctions, where the surface belongs to several tubes.  ``benchmarks/trust.py`` checks every
+#: written model against these over hundreds of random scans; tests/test_trust.py on a sample.
+CLAIMS = {"good": {"spine": 0.05, "radius": 0.03},
+          "check": {"spine": 0.10, "radius": 0.10},
+          "poor": {"spine": 0.25, "radius": 0.25}}
 #: Inlier RMS distance from the surface above this share of the radius: ``poor`` (noise of a tenth
 #: of the radius leaves single cross-sections, and so a short tube's radius, that uncertain).
 POOR_RMS_RADII = 0.10
