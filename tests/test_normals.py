@@ -144,3 +144,19 @@ def test_larger_k_still_outward_and_accurate(angle_deg):
     normals = estimate_normals(tube.points, k=30)
     assert _outward_share(normals, tube.normals) >= MIN_SIGN_AGREEMENT
     assert angle_deg(normals, tube.normals).mean() <= MEAN_ANGLE_DEFAULT_DEG
+
+
+def test_on_planes_finds_the_floor_under_a_pipe_but_not_the_pipe():
+    from canalsurf.normals import on_planes
+    from canalsurf.synth import make_network
+
+    scene = make_network("floor-clutter", n=8000, noise=0.01, rng=2)
+    nrm = estimate_normals(scene.points)
+    floor_z = scene.floor[4]
+    flat = np.flatnonzero(np.abs(scene.points[:, 2] - floor_z) < 0.05)
+    found = on_planes(scene.points, nrm, flat, 0.05)
+    on_floor = np.abs(scene.points[found, 2] - floor_z) < 0.05
+    assert on_floor.mean() > 0.99
+    assert len(found) >= 0.9 * len(flat)
+    tube = scene.label >= 0
+    assert np.isin(np.flatnonzero(tube), found).mean() < 0.01

@@ -104,3 +104,15 @@ def _box_surface(n: int, rng) -> np.ndarray:
 def test_a_box_is_not_a_tube(seed):
     with pytest.raises(canalsurf.ReconstructionError, match="not a tube|no part of the cloud is a tube"):
         canalsurf.reconstruct(_box_surface(5000, np.random.default_rng(seed)))
+
+
+def test_spines_continued_into_a_junction_do_not_hook():
+    # A branch whose fitted end ran past its junction was continued by an arc that turned round to
+    # reach it: a hook with r x curvature of about 8000 on a branch graded good.  Ends are now cut back
+    # to their point nearest the junction, and a folded branch is never written.
+    from canalsurf.quality import fold
+
+    network = canalsurf.reconstruct(make_network("tree", n=20000, noise=0.01, rng=1).points)
+    assert len(network.branches) == 7
+    for b in network.branches:
+        assert fold(b.spine, b.radius, b.closed) == "", b.id

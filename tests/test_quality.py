@@ -58,3 +58,34 @@ def test_reconstructions_report_their_quality(arc, level):
     assert model.diagnostics["quality"] == level
     assert model.branches[0].diagnostics["quality"] == level
     assert (level == "good") == (model.diagnostics["quality_reasons"] == [])
+
+
+def _polyline_spline(points):
+    from scipy.interpolate import make_interp_spline
+
+    from canalsurf.synth import _by_arclength
+
+    u = np.linspace(0, 1, len(points))
+    return _by_arclength(make_interp_spline(u, np.asarray(points, float), k=3)(np.linspace(0, 1, 400)))
+
+
+def test_fold_finds_a_hairpin_and_a_kink_but_not_a_tube():
+    from canalsurf.quality import fold
+    from canalsurf.spine import constant_spline
+
+    # A spine that comes round to run over its own start (380 degrees of a circle of radius 3): two
+    # tubes in one place, though it bends gently everywhere.
+    a = np.radians(np.linspace(0, 380, 80))
+    over = _polyline_spline(np.column_stack([3 * np.cos(a), 3 * np.sin(a), 0.05 * a]))
+    assert "passes within" in fold(over, constant_spline(1.0), False)
+    # Run to the far end and back (a hairpin): it turns round at its tip.
+    hairpin = _polyline_spline([[0, 0, 0], [4, 0, 0], [5, 0.25, 0], [4, 0.5, 0], [0, 0.5, 0]])
+    assert "turns back" in fold(hairpin, constant_spline(1.0), False)
+    # A U-turn of radius 0.3 on a tube of radius 1 (its legs 0.6 apart): a hook.
+    t = np.linspace(0, np.pi, 50)
+    hook = _polyline_spline(np.column_stack([np.r_[np.linspace(-3, 0, 10)[:-1], 0.3 * np.sin(t)],
+                                             np.r_[np.zeros(9), 0.3 - 0.3 * np.cos(t)], np.zeros(59)]))
+    assert "turns back" in fold(hook, constant_spline(1.0), False)
+    for name in ("elbow", "torus", "tight-helix", "fig16-canal"):
+        tube = canalsurf.make_tube(name, n=500, rng=1)
+        assert fold(tube.spine, tube.radius, tube.closed) == "", name

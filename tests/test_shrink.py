@@ -295,3 +295,25 @@ def test_concentration_follows_a_varying_radius(envelope):
     expected = radius(t) * np.sqrt(1 + (1.0 / 20.0) ** 2)
     assert np.median(np.abs(result.distance - expected)) <= 0.05
     assert np.percentile(np.abs(result.distance - expected), 95) <= 0.15
+
+
+@pytest.mark.parametrize("grid, off_axis, radius", [(None, 0.05, 0.05), (0.4, 0.5, 0.3)])
+def test_sections_find_the_axis_of_a_sparse_one_sided_pole(grid, off_axis, radius):
+    # A pole of radius 1 seen over 150 degrees, sparse (spacing 0.36 r), and also stored on a grid of
+    # 0.4 r as a mobile-mapping pole is: normals are noise there, but circles through each
+    # neighbourhood's cross-section still find the axis -- closely on exact coordinates, well enough to
+    # start the final fit from on the grid.
+    from canalsurf.shrink import shrink_by_sections
+    from canalsurf.spine import constant_spline
+    from canalsurf.synth import sample_tube
+
+    rng = np.random.default_rng(3)
+    spine = BSpline(np.array([0, 0, 1, 1.0]), np.array([[0, 0, 0], [0, 0, 20.0]]), 1)
+    points, _ = sample_tube(spine, constant_spline(1.0), 400, 0.05, rng, arc=150)
+    if grid:
+        points = np.round(points / grid) * grid
+    result, tube = shrink_by_sections(points)
+    assert tube.mean() > 0.6  # all but the ends, where a neighbourhood is as wide as it is long
+    assert np.median(np.hypot(result.points[tube, 0], result.points[tube, 1])) < off_axis
+    assert abs(np.median(result.distance[tube]) - 1.0) < radius
+    assert result.stop_rule == "sections"

@@ -26,6 +26,9 @@ N_DENSE = 20000
 #: Points per stretch of spine for the angular coverage: with 100 points spread all around, the largest
 #: angular gap is about 2 pi ln(100) / 100, i.e. a full scan reads about 340 degrees.
 COVERAGE_POINTS = 100
+#: The widest angle holding at most this share of a stretch's points counts as unseen: with 100 points
+#: the two most isolated may stray across it (noise at the edge of a one-sided scan, a stray point).
+COVERAGE_STRAY_SHARE = 0.02
 
 
 def _around(points: np.ndarray, spine, t: np.ndarray, per_stretch: int):
@@ -66,7 +69,8 @@ def angular_coverage(points: np.ndarray, spine, t: np.ndarray) -> np.ndarray:
 
     The spine is cut into stretches of about ``COVERAGE_POINTS`` points each; in each, the points'
     directions from their footpoints ``C(t_i)`` are taken as angles around the stretch's mid tangent,
-    and the coverage is 360 degrees less the widest empty angle.
+    and the coverage is 360 degrees less the widest angle that holds at most ``COVERAGE_STRAY_SHARE``
+    of them (a few scattered points do not make a one-sided scan look seen all round).
 
     Parameters
     ----------
@@ -87,7 +91,9 @@ def angular_coverage(points: np.ndarray, spine, t: np.ndarray) -> np.ndarray:
     cover = np.empty(n_bins)
     for b in range(n_bins):
         a = np.sort(angle[bins == b])
-        widest = np.max(np.diff(np.concatenate([a, [a[0] + 2 * np.pi]])))
+        m = int(COVERAGE_STRAY_SHARE * len(a))
+        around = np.concatenate([a, a[: m + 1] + 2 * np.pi])
+        widest = np.max(around[m + 1: m + 1 + len(a)] - around[: len(a)])
         cover[b] = 360.0 - np.degrees(widest)
     return cover
 
@@ -299,7 +305,7 @@ ROUNDNESS_MIN_CELL = 5
 
 
 def roundness(points: np.ndarray, spine, t: np.ndarray, residual: np.ndarray) -> float:
-    """RMS of the median residual per cell of (stretch along the spine, sector around it).
+    """RMS of the median residual per cell of (stretch along the spine, sector around it), less noise.
 
     On a tube the residuals are noise and each cell's median is near 0; on a shape that is not round
     in cross-section (a box, a duct, a flattened or doubled cloud) whole sectors lie systematically
@@ -315,9 +321,17 @@ def roundness(points: np.ndarray, spine, t: np.ndarray, residual: np.ndarray) ->
         return 0.0
     sector = np.minimum(((angle + np.pi) / (2 * np.pi) * ROUNDNESS_SECTORS).astype(int), ROUNDNESS_SECTORS - 1)
     cell = bins * ROUNDNESS_SECTORS + sector
-    medians = []
+    medians, counts = [], []
     for c in np.unique(cell):
         r = residual[cell == c]
         if len(r) >= ROUNDNESS_MIN_CELL:
             medians.append(np.median(r))
-    return float(np.sqrt(np.mean(np.square(medians)))) if medians else 0.0
+            counts.append(len(r))
+    if not medians:
+        return 0.0
+    # Noise alone leaves each cell's median off by about sqrt(pi / 2) sigma / sqrt(n): what is left
+    # after taking that out is the shape's own departure from round (a sparse, noisy scan's cells would
+    # otherwise read as out of round).
+    sigma = 1.4826 * np.median(np.abs(residual - np.median(residual)))
+    excess = np.mean(np.square(medians)) - np.mean(np.pi / 2 * sigma**2 / np.asarray(counts))
+    return float(np.sqrt(max(excess, 0.0)))

@@ -13,7 +13,7 @@ import logging
 import math
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import BSpline
@@ -26,10 +26,10 @@ from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
 from .normals import estimate_normals, on_planes, point_inward
-from .quality import branch_quality, scan_quality, support_gap
+from .quality import branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, prefer_canal, principal_curvature
 from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
-from .shrink import shrink, shrink_by_concentration
+from .shrink import shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
 from .spine import arclength_reparametrize, constant_spline, curve_length, pspline_fit
 
@@ -190,12 +190,31 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         raise InputError(f"refine must be True or False, got {refine!r}")
     scan = _prepare(points, normals, k)
     with timer("normals"):
-        scan, nrm, r0, area_per_point, curved, noise, kappa = _normals(scan, k, flat_out=stop == "auto")
+        quantum = quantisation_noise(scan.all_pts)
+        scan, nrm, r0, area_per_point, curved, noise, kappa = _normals(scan, k, flat_out=stop == "auto",
+                                                                       quantum=quantum)
     algo = "pipe" if kind == "pipe" else "canal"
     p = _parameters(r0, area_per_point, scan.scale, R=R, delta=delta, mu=mu, tau=tau, H=H, algo=algo,
                     stop=stop)
     with timer("shrink"):
-        sr, kept = _shrink(scan.pts[curved], nrm[curved], p, r0, algo=algo, stop=stop, neighbours=neighbours)
+        try:
+            sr, kept = _shrink(scan.pts[curved], nrm[curved], p, r0, algo=algo, stop=stop, neighbours=neighbours)
+        except ReconstructionError:
+            if stop != "auto":
+                raise
+            # The normals could not be trusted (coordinates quantised to steps near the radius):
+            # cross-sections of the points themselves find the axes.
+            log.info("the points shifted along their normals do not gather: each point moves to the "
+                     "centre of a circle fitted to its neighbourhood's cross-section")
+            sr, tube = shrink_by_sections(scan.pts)
+            r0 = float(np.median(sr.distance[tube])) if tube.any() else np.inf
+            if not 0 < r0 < np.inf:
+                raise
+            curved = np.flatnonzero(tube & (sr.distance < C.MAX_SHRINK_PER_RADIUS * r0))
+            p = _parameters(r0, area_per_point, scan.scale, R=R, delta=delta, mu=mu, tau=tau, H=H, algo=algo,
+                            stop=stop)
+            sr = replace(sr, points=sr.points[curved], distance=sr.distance[curved])
+            kept = np.arange(len(curved))
     with timer("thin"):
         shrunk = sr.points[kept]
         thin = _thin(shrunk, p["H"])
@@ -203,12 +222,12 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     with timer("skeleton"):
         skel = skeletonize(thin, r_i, spacing=C.ORDER_VOXEL_PER_H * p["H"])
     with timer("fit"):
-        skel, fits = _fit_network(scan.fit_pts, skel, kind=kind, refine=refine, noise=noise,
+        skel, fits = _fit_network(scan.fit_pts, skel, kind=kind, refine=refine, noise=noise, quantum=quantum,
                                   **_fit_support(scan, curved, kappa))
     with timer("junctions"):
         fits, junction_points = _join_at_junctions(fits, skel)
     with timer("residual"):
-        branches, summary = _check_and_describe(scan, fits, noise)
+        branches, summary = _check_and_describe(scan, fits, noise, junction_points)
     network = _to_input_units(branches, junction_points, fits, scan)
     network.parameters = _reported_parameters(p, scan.scale, k=k, r0=r0, stop=stop, neighbours=neighbours,
                                               refine=refine)
@@ -257,7 +276,7 @@ def _prepare(points, normals, k) -> _Scan:
                  pts[np.sort(draw[: C.MAX_FIT_POINTS])])
 
 
-def _normals(scan: _Scan, k, *, flat_out: bool):
+def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0):
     """Normals, the first radius estimate r0, the area per point and the points that may shrink.
 
     A long, thin tube (or a scene of many) spreads a fixed-size subset too thinly around each
@@ -302,7 +321,7 @@ def _normals(scan: _Scan, k, *, flat_out: bool):
             raise ReconstructionError("the surface is flat (no curvature around a spine) — "
                                       "the input is not a tube")
     # The tubes' noise, not the floor's: a quantised floor is exactly flat and would read as no noise.
-    noise = max(_scan_noise(scan.pts, nbr[curved]), quantisation_noise(scan.all_pts))
+    noise = max(_scan_noise(scan.pts, nbr[curved]), quantum)
     if flat_out:
         # Points on a large plane (ground, a wall, a sign) are clutter even where their neighbourhood
         # reaches a tube and reads as curved.
@@ -522,7 +541,7 @@ def _quality(fit: _BranchFit) -> dict:
     kappa = fit.kappa[~stray] if fit.kappa is not None and (~stray).any() else np.empty(0)
     curving = 1.0 / np.median(kappa) if len(kappa) and np.median(kappa) > 0 else np.inf
     return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum()),
-            "curving": float(curving)}
+            "curving": float(curving), "fold": fold(fit.spine, fit.radius, fit.closed)}
 
 
 #: A branch whose radius exceeds this many times the median curvature radius of its own points
@@ -532,17 +551,26 @@ def _quality(fit: _BranchFit) -> dict:
 MAX_RADIUS_PER_CURVING = 2.5
 
 
-def _is_tube(q: dict, noise: float) -> tuple[bool, str]:
+def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     """Whether a fitted branch is a tube: its points near the surface lie close to it, all round,
-    and no farther than the scan's own ``noise`` explains."""
+    and no farther than the scan's own ``noise`` explains.
+
+    A tube whose points scatter more than ``MAX_RELATIVE_RESIDUAL`` of its radius, or lie off round by
+    more than ``MAX_OUT_OF_ROUND``, passes when the grid of the coordinates (``quantum``,
+    :func:`quantisation_noise`) explains it: a thin pole stored in steps of a third of its radius can be
+    no closer to its surface than that, and along a pole parallel to an axis the rounding is the same in
+    every cross-section, so it stays by sector.
+    """
     if q["n"] < MIN_CHECKED_POINTS:
         return False, f"only {q['n']} points lie on the best tube, too few to tell it is one"
-    if not q["radius"] > 0 or q["rms"] > MAX_RELATIVE_RESIDUAL * q["radius"]:
+    if not q["radius"] > 0 or q["rms"] > max(MAX_RELATIVE_RESIDUAL * q["radius"], SCAN_NOISE_RATIO * quantum):
         return False, (f"the points do not lie on a tube: RMS distance from the best tube is "
                        f"{q['rms'] / max(q['radius'], 1e-300):.0%} of its radius")
-    if q["round"] > MAX_OUT_OF_ROUND * q["radius"]:
+    if q["round"] > max(MAX_OUT_OF_ROUND * q["radius"], SCAN_NOISE_RATIO * quantum):
         return False, (f"the points are not round about the spine: whole sectors lie "
                        f"{q['round'] / q['radius']:.0%} of the radius off the best tube")
+    if q["fold"]:
+        return False, q["fold"]
     if q["radius"] > MAX_RADIUS_PER_CURVING * q["curving"]:
         return False, (f"the points curve far more tightly (radius {q['curving']:.2g}) than the one tube through "
                        f"them (radius {q['radius']:.2g}): thinner tubes side by side or a coil, not one tube")
@@ -554,10 +582,11 @@ def _is_tube(q: dict, noise: float) -> tuple[bool, str]:
 
 
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
-                 curved: np.ndarray, kappa: np.ndarray):
+                 quantum: float, curved: np.ndarray, kappa: np.ndarray):
     """Fit every branch; drop those that are no tube and join the branches they separated.
 
-    ``noise`` is the scan's own noise (:func:`_scan_noise`), against which a branch's misfit is judged;
+    ``noise`` is the scan's own noise (:func:`_scan_noise`), against which a branch's misfit is judged,
+    ``quantum`` the part of it its coordinates' grid alone adds (:func:`quantisation_noise`);
     ``curved`` marks the points that may be fitted (:func:`_assign`), ``kappa`` is each point's larger
     principal curvature (a tube's points curve with its radius).
     """
@@ -581,7 +610,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                     continue
         for i, fit in enumerate(fits):
             if fit:
-                ok, why = _is_tube(_quality(fit), noise)
+                ok, why = _is_tube(_quality(fit), noise, quantum)
                 if not ok:
                     reason, fits[i] = why, False
         drop = [i for i, f in enumerate(fits) if f is False]
@@ -632,25 +661,39 @@ def _junction_point(fits: list, ends: list, guess: np.ndarray) -> np.ndarray:
     return point if np.linalg.norm(point - guess) <= 2 * largest else guess
 
 
+#: A spine end is cut back to its point nearest its junction when that point lies within this many
+#: of the branch's radii of the end.
+END_TRIM_RADII = 2.0
+
+
 def _continue_to(fit: _BranchFit, end: int, target: np.ndarray) -> None:
     """Continue the branch's spine from ``end`` smoothly to ``target`` (a Hermite arc), in place."""
     spine, radius = fit.spine, fit.radius
     length = curve_length(spine)
-    p, d = _end_frame(spine, end)
-    gap = float(np.linalg.norm(target - p))
-    if gap <= 1e-9 * length:
-        return
     nseg = len(spine.t) - 2 * spine.k - 1
     n = max(40 * nseg, 2001)
     t = np.linspace(0.0, 1.0, n)
     pts, r = spine(t), radius(t)
+    # A spine that runs on past the junction (or turns away before it) is cut back at its point
+    # nearest the junction, within a radius or two of the end: an arc from its end would turn round
+    # to reach a point behind it, a hook that folds the tube.
+    near_end = np.flatnonzero(np.abs(t - end) * length <= END_TRIM_RADII * fit.eq6)
+    nearest = near_end[np.argmin(np.linalg.norm(pts[near_end] - target, axis=1))]
+    keep = slice(0, nearest + 1) if end == 1 else slice(nearest, n)
+    pts, r, t_end = pts[keep], r[keep], float(t[nearest])
+    p = pts[-1] if end == 1 else pts[0]
+    d = spine.derivative()(t_end)
+    d = d / np.linalg.norm(d) * (1.0 if end == 1 else -1.0)
+    gap = float(np.linalg.norm(target - p))
+    if gap <= 1e-9 * length:
+        return
     u = np.linspace(0.0, 1.0, max(20, int(n * gap / length)))[1:, None]
     h00, h10, h01, h11 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2, u**3 - u**2
     arc = h00 * p + h10 * gap * d + h01 * target + h11 * gap * d
     # A canal's radius goes on changing at its rate at the end (per unit of length along the arc).
     along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(np.vstack([p, arc]), axis=0), axis=1))])[1:]
-    rate = float(radius.derivative()(float(end))) / length * (1.0 if end == 1 else -1.0)
-    r_arc = float(radius(float(end))) + rate * along
+    rate = float(radius.derivative()(t_end)) / length * (1.0 if end == 1 else -1.0)
+    r_arc = float(radius(t_end)) + rate * along
     if end == 1:
         pts, r = np.vstack([pts, arc]), np.r_[r, r_arc]
     else:
@@ -689,11 +732,18 @@ def _join_at_junctions(fits: list, skel: Skeleton):
 # checks and the result
 
 
-def _check_and_describe(scan: _Scan, fits: list, noise: float):
+def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: np.ndarray):
     """Per-branch diagnostics and the scan's: which points lie on a tube, how well, how seen, and the
     quality each can be trusted with (:mod:`canalsurf.quality`)."""
     branches = []
     for i, fit in enumerate(fits):
+        folded = fold(fit.spine, fit.radius, fit.closed, junctions=[
+            (junction_points[j], JUNCTION_EXCLUSION_RADII * max(f.eq6 for f in fits if j in f.ends))
+            for j in fit.ends if j is not None])
+        if folded:
+            # Checked before the junctions too; continuing a spine into its junction must not fold it.
+            raise ReconstructionError(f"branch {i}: {folded} — the model cannot be trusted; "
+                                      "crop the scan to fewer tubes, or report it with the input")
         t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
         stray = is_stray(residual, fit.eq6)
         near = ~stray

@@ -17,7 +17,7 @@ import numpy as np
 
 from .constants import ONE_SIDED_DEGREES
 
-__all__ = ["LEVELS", "CLAIMS", "branch_quality", "scan_quality", "support_gap"]
+__all__ = ["LEVELS", "CLAIMS", "branch_quality", "scan_quality", "support_gap", "fold"]
 
 #: Qualities from best to worst.
 LEVELS = ("good", "check", "poor")
@@ -45,6 +45,61 @@ POOR_COVERAGE_DEGREES = 120.0
 CHECK_GAP_RADII, POOR_GAP_RADII = 1.0, 3.0
 #: More than this share of the scan on no tube: ``check`` (tubes in it may have been missed).
 CHECK_NO_TUBE_SHARE = 0.5
+
+
+#: A spine whose tangent turns by more than a right angle within this many radii of its length turns
+#: back on itself: a hook, or a hairpin's tip.  Any real bend is gentler -- a pipe's tightest elbow
+#: (bend radius 1 D = 2 r) turns 90 degrees over 3.1 radii -- and the wiggles of an unrefined spline,
+#: however sharp, are too small to turn it round.
+FOLD_TURN_RADII = 1.0
+#: Spine samples of :func:`fold`: bends and near passes are found to well within a radius.
+FOLD_SAMPLES = 600
+#: Two parts of a spine this many radii apart along it (half a turn round a circle of the radius
+#: is pi) that come closer in space than the sum of their radii times the second constant
+#: pass through each other.
+FOLD_ALONG_RADII, FOLD_CLEARANCE = np.pi, 0.9
+
+
+def fold(spine, radius, closed: bool, *, junctions=()) -> str:
+    """Why a tube's spine folds -- it turns back on itself, or passes through itself -- or ``""`` if it
+    does not.
+
+    A tube whose spine turns round within a radius of its length folds onto itself; one whose spine
+    comes back within a radius of itself (a hairpin: the spine of a short tube run to the far end and
+    back) is two tubes in one place.  Neither is a pipe or canal surface.  Within ``junctions``
+    (pairs of a point and a reach) the tubes meeting there are united and the spine is not checked.
+    """
+    from .spine import sample_arclength
+
+    t, pts = sample_arclength(spine, FOLD_SAMPLES)
+    r = radius(t)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    length = s[-1]
+    checked = np.ones(len(t), bool)
+    for point, reach in junctions:
+        checked &= np.linalg.norm(pts - point, axis=1) > reach
+    t, pts, r, s = t[checked], pts[checked], r[checked], s[checked]
+    if not len(t):
+        return ""
+    tangent = spine.derivative()(t)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    ahead = np.searchsorted(s, s + FOLD_TURN_RADII * r)
+    inside = ahead < len(s)
+    turned = np.einsum("ij,ij->i", tangent[inside], tangent[ahead[inside]]) < 0
+    if turned.any():
+        return "the spine turns back on itself within a radius (a hook or a hairpin)"
+    along = np.abs(s[:, None] - s[None])
+    if closed:
+        along = np.minimum(along, length - along)
+    apart = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+    rr = r[:, None] + r[None]
+    far = along > FOLD_ALONG_RADII * np.maximum(r[:, None], r[None])
+    close = far & (apart < FOLD_CLEARANCE * rr)
+    if close.any():
+        i, j = np.argwhere(close)[0]
+        return (f"the spine passes within {apart[i, j] / max(r[i], r[j]):.1f} radii of itself "
+                f"{along[i, j] / max(r[i], r[j]):.0f} radii further along it (a fold)")
+    return ""
 
 
 def support_gap(t: np.ndarray, length: float, closed: bool) -> float:
