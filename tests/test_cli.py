@@ -122,7 +122,17 @@ def test_version(capsys):
     assert capsys.readouterr().out.strip() == f"canalsurf {canalsurf.__version__}"
 
 
-@pytest.mark.parametrize("command", [[], ["demo"], ["reconstruct"], ["synth"], ["paper"]])
+def test_synth_help_lists_the_surfaces_and_networks(capsys):
+    """The list comes from canalsurf.synth, imported only when synth is used."""
+    assert cli.main(["synth", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert f"Surfaces: {', '.join(SURFACES)}." in out and f"Networks: {', '.join(NETWORKS)} (see --list)." in out
+    noise = make_network.__kwdefaults__["noise"]
+    assert f"; {make_network.__kwdefaults__['n']} for a network, clutter included)" in " ".join(out.split())
+    assert f"(default {noise:g}: ±{100 * noise:g} % of the radius)" in " ".join(out.split())
+
+
+@pytest.mark.parametrize("command", [[], ["demo"], ["reconstruct"], ["info"], ["synth"], ["paper"]])
 def test_help_has_examples(command, capsys):
     assert cli.main([*command, "--help"]) == 0
     out = capsys.readouterr().out
@@ -358,11 +368,22 @@ def _check_spine_dxf(path: Path, data: dict) -> None:
 def test_without_ezdxf_spine_dxf_is_skipped_and_said(cloud, tmp_path, capsys, monkeypatch, instant_pipeline):
     monkeypatch.setitem(sys.modules, "ezdxf", None)  # import fails as if not installed
     monkeypatch.setattr(cli, "_DXF_AVAILABLE", None)  # forget an earlier answer
-    assert cli.main(["-v", "reconstruct", str(cloud), "-o", str(tmp_path)]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".canalsurf-manifest.json", "model.json", "spine.csv",
-                                                         "surface.ply"]
-    assert "ezdxf is not installed: spine.dxf is skipped (pip install 'canalsurf[dxf]')" in \
-        capsys.readouterr().err
+    note = "spine.dxf not written: needs the 'dxf' extra (pip install 'canalsurf[dxf]')"
+    assert cli.main(["reconstruct", str(cloud), "-o", str(tmp_path / "a")]) == 0
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == [".canalsurf-manifest.json", "model.json",
+                                                                 "spine.csv", "surface.ply"]
+    captured = capsys.readouterr()
+    assert captured.err == ""  # a note of the summary, not an error or a warning
+    assert f"\nnote: {note}\n" in captured.out
+    assert "spine.dxf is unitless" not in captured.out  # nothing said of a file not written
+    # the same in --json, as a field of the record
+    assert cli.main(["reconstruct", str(cloud), "-o", str(tmp_path / "b"), "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["not_written"] == {"spine.dxf": "needs the 'dxf' extra (pip install 'canalsurf[dxf]')"}
+    assert record["notes"] == [note]
+    # -q: no summary, so no note either
+    assert cli.main(["reconstruct", str(cloud), "-o", str(tmp_path / "c"), "-q"]) == 0
+    assert capsys.readouterr() == ("", "")
 
 
 def test_progress_bar_on_a_terminal(cloud, tmp_path, capsys):
@@ -415,7 +436,8 @@ def test_several_inputs_one_bad(cloud, tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["pipe", "pipe-2"]
     for folder in ("pipe", "pipe-2"):
         assert load_model(out / folder / "model.json").kind == "pipe"
-    assert len(captured.out.strip().splitlines()) == 2
+    summary, notes = captured.out.strip().split("\nnote: ")  # the notes of the run follow once, at the end
+    assert len(summary.splitlines()) == 2 and notes.startswith("no --units given: spine.dxf is unitless")
 
 
 def test_json(cloud, tmp_path, capsys):

@@ -16,13 +16,18 @@ import pytest
 from canalsurf import io
 from canalsurf.errors import InputError
 from canalsurf.io import (
+    DXF_UNITS,
     MESH_FORMATS,
+    POINT_FORMAT_NAMES,
     POINT_FORMATS,
+    PointFileInfo,
     atomic_write,
+    point_file_info,
     read_points,
     write_json,
     write_mesh,
     write_spine_csv,
+    write_points,
     write_spine_dxf,
 )
 
@@ -465,6 +470,102 @@ def test_e57_round_trip_with_two_posed_scans(tmp_path, cloud):
 
 
 # ---------------------------------------------------------------------------------------------------
+# what a file holds: point_file_info
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".xyz", ".csv", ".npy", ".npz"])
+@pytest.mark.parametrize("with_normals", [True, False], ids=["normals", "no-normals"])
+def test_point_file_info_of_the_files_canalsurf_writes(tmp_path, cloud, suffix, with_normals):
+    points, normals = cloud
+    path = tmp_path / f"scan{suffix}"
+    write_points(path, points, normals if with_normals else None)
+    info = point_file_info(path)
+    assert info.fields == (("x", "y", "z", "nx", "ny", "nz") if with_normals else ("x", "y", "z"))
+    assert info.format.startswith(POINT_FORMAT_NAMES[suffix])
+    assert set(POINT_FORMAT_NAMES) == set(POINT_FORMATS)  # every format has a name
+    detail = {".ply": "PLY, binary little-endian", ".xyz": "text, space separated", ".csv": "text, comma separated",
+              ".npy": f"NumPy .npy, float64 array of shape ({N}, {6 if with_normals else 3})",
+              ".npz": "NumPy .npz, arrays points" + (", normals" if with_normals else "")}[suffix]
+    assert info == PointFileInfo(detail, info.fields)
+    # what read_points says of the normals agrees
+    assert (read_points(path)[1] is not None) == with_normals
+
+
+def test_point_file_info_names_every_ply_property(tmp_path):
+    vertex = np.zeros(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("intensity", "u2"), ("red", "u1"),
+                                ("scalar_Classification", "f4")])
+    face = np.array([([0, 1, 2],)], dtype=[("vertex_indices", "i4", (3,))])
+    path = tmp_path / "scan.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex"), plyfile.PlyElement.describe(face, "face")],
+                    text=True).write(str(path))
+    assert point_file_info(path) == PointFileInfo(
+        "PLY, ASCII", ("x", "y", "z", "intensity", "red", "scalar_Classification"))  # not the face's list
+
+
+def test_point_file_info_reads_a_text_header(tmp_path):
+    path = tmp_path / "scan.txt"
+    path.write_text("# exported\nX;Y;Z\n1;2;3\n4;5;6\n")
+    assert point_file_info(path) == PointFileInfo("text, semicolon separated", ("X", "Y", "Z"))
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary"])
+def test_point_file_info_of_pcd(tmp_path, cloud, encoding):
+    _write_pcd(tmp_path / "scan.pcd", *cloud, dtype=np.float32, encoding=encoding)
+    assert point_file_info(tmp_path / "scan.pcd") == PointFileInfo(
+        f"PCD, DATA {encoding}", ("x", "y", "z", "normal_x", "normal_y", "normal_z"))
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_point_file_info_of_las_names_its_dimensions(tmp_path, cloud, suffix):
+    if suffix == ".laz":
+        pytest.importorskip("lazrs")
+    path = tmp_path / f"scan{suffix}"
+    _write_las(path, cloud[0] + 1e6, cloud[1])
+    info = point_file_info(path)
+    assert info.format == f"{suffix[1:].upper()}, version 1.2, point format 3"
+    assert info.fields[:4] == ("X", "Y", "Z", "intensity")
+    assert {"classification", "gps_time", "red", "green", "blue", "NormalX", "NormalY", "NormalZ"} <= set(info.fields)
+
+
+def test_point_file_info_of_e57_gathers_the_fields_of_every_scan(tmp_path, cloud):
+    pye57 = pytest.importorskip("pye57")
+    points = cloud[0]
+    path = tmp_path / "scan.e57"
+    with pye57.E57(str(path), mode="w") as e57:
+        e57.write_scan_raw({f"cartesian{a}": np.ascontiguousarray(points[:100, i]) for i, a in enumerate("XYZ")})
+        e57.write_scan_raw({f"cartesian{a}": np.ascontiguousarray(points[100:, i]) for i, a in enumerate("XYZ")}
+                           | {"intensity": np.ones(N - 100)})
+    assert point_file_info(path) == PointFileInfo(
+        "E57, 2 scans", ("cartesianX", "cartesianY", "cartesianZ", "intensity"))
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".xyz", ".npy", ".npz", ".pcd", ".las", ".e57"])
+def test_point_file_info_fails_like_read_points(tmp_path, suffix):
+    path = tmp_path / f"scan{suffix}"
+    path.write_bytes(os.urandom(2048) if suffix != ".xyz" else b"\0" * 2048)
+    with pytest.raises(InputError, match=rf"scan\{suffix}: ") as info:
+        point_file_info(path)
+    _assert_one_line(info)
+    with pytest.raises(InputError, match=r"missing\.ply: file not found — check the path"):
+        point_file_info(tmp_path / "missing.ply")
+    with pytest.raises(InputError, match=r"unknown point format '\.vtk'"):
+        point_file_info(tmp_path / "scan.vtk")
+
+
+def test_the_examples_in_the_docstrings_run():
+    """read_points, point_file_info, atomic_write and canalsurf.pointcloud: their examples are doctests."""
+    import doctest
+
+    import canalsurf.pointcloud
+
+    for module in (io, canalsurf.pointcloud):
+        result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+        assert result.failed == 0 and result.attempted >= 5, module.__name__
+    assert "Examples" in canalsurf.read_points.__doc__ and canalsurf.read_points is read_points
+    assert "read_points" in canalsurf.__all__ and "read_points" in dir(canalsurf)
+
+
+# ---------------------------------------------------------------------------------------------------
 # errors shared by every point format
 
 
@@ -813,6 +914,30 @@ def test_spine_dxf_round_trip(tmp_path):
         np.testing.assert_array_equal([list(v.dxf.location) for v in vertices], samples + shift)
         got_radius = [v.get_xdata(io.DXF_APPID)[0].value for v in vertices]
         np.testing.assert_array_equal(got_radius, radius * scale)
+
+
+@pytest.mark.parametrize("units, insunits, metric", [(None, 0, 1), ("m", 6, 1), ("mm", 4, 1), ("ft", 2, 0),
+                                                     ("in", 1, 0)])
+def test_spine_dxf_declares_its_units(tmp_path, units, insunits, metric):
+    """$INSUNITS from the unit (AutoCAD's codes), unitless without one; $MEASUREMENT to match."""
+    ezdxf = pytest.importorskip("ezdxf")
+    _, knots, control, degree, samples, radius = _spine()
+    path = tmp_path / "spine.dxf"
+    write_spine_dxf(path, [(knots, control, degree, samples, radius)], units=units)
+    doc = ezdxf.readfile(path)
+    assert doc.header["$INSUNITS"] == insunits and doc.units == insunits
+    assert doc.header["$MEASUREMENT"] == metric
+    if units is not None:
+        assert DXF_UNITS[units] == insunits
+    # the unit is a label: the numbers are the same whatever it is
+    np.testing.assert_array_equal(np.array(doc.modelspace().query("SPLINE")[0].control_points), control)
+
+
+def test_spine_dxf_unknown_unit(tmp_path):
+    _, knots, control, degree, samples, radius = _spine()
+    with pytest.raises(InputError, match=r"units must be one of 'm', 'mm', 'ft', 'in' or None, got 'yd'"):
+        write_spine_dxf(tmp_path / "spine.dxf", [(knots, control, degree, samples, radius)], units="yd")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_spine_dxf_knot_count_is_checked(tmp_path):

@@ -33,9 +33,11 @@ from canalsurf import cli
 from canalsurf._outputs import MANIFEST_NAME
 from canalsurf.errors import InputError
 from canalsurf.model import CanalModel
-from canalsurf.spine import curve_length
-from canalsurf.report import (BRANCH_COLOURS, NO_TUBE_COLOUR, PLOTLY_AXIS_PAD, PLOTLY_FOVY, VIEW_FIT_ASPECT,
-                              _label, render_report, write_report)
+from canalsurf.spine import constant_spline, curve_length
+from canalsurf.network import Network
+from canalsurf.pipeline import STAGES
+from canalsurf.report import (BRANCH_COLOURS, NO_TUBE_COLOUR, PLOTLY_AXIS_PAD, PLOTLY_FOVY, PLOTLY_JS_NAME,
+                              VIEW_FIT_ASPECT, _label, render_report, write_plotly_js, write_report)
 
 #: The browser the report must work in, and how to get it.
 CHROMIUM = Path("/usr/bin/chromium")
@@ -267,8 +269,10 @@ def test_report_has_parameters_diagnostics_and_words(report_html, cli_run):
             assert f"<td>{value:.6g}</td>" in page
     for key, label in (("delta", "δ: shrink step"), ("n_shrink_points", "points in the shrinking subset"),
                        ("inlier_rms_residual", "RMS distance from the surface, points on a tube"),
-                       ("stop_rule", "rule that stopped the shrinking"), ("seconds.normals", "normals (s)"),
-                       ("seconds.shrink", "shrink (s)"), ("seconds.thin", "thin (s)")):
+                       ("stop_rule", "rule that stopped the shrinking"), ("seconds.normals", "time: normals (s)"),
+                       ("seconds.shrink", "time: shrink (s)"), ("seconds.thin", "time: thin (s)"),
+                       ("quality", "quality (good, check or poor)"),
+                       ("scan_noise", "scan noise (from neighbour planes and coordinate steps)")):
         assert f'<th title="{key}">{label}</th>' in page
     r = data["branches"][0]["radius"]["constant"]
     assert f"A pipe surface of constant radius {r:.6g}" in page
@@ -278,8 +282,8 @@ def test_report_has_parameters_diagnostics_and_words(report_html, cli_run):
 
 def test_labels_spell_out_unknown_keys():
     assert _label("n_shrink_points") == "points in the shrinking subset"
-    assert _label("seconds.normals") == "normals (s)"
-    assert _label("seconds.mesh_union") == "mesh union (s)"
+    assert _label("seconds.normals") == "time: normals (s)"
+    assert _label("seconds.mesh_union") == "time: mesh union (s)"
     assert _label("n_widgets") == "number of widgets"
     assert _label("largest_gap") == "largest gap"
     assert _label("fit.max_rounds") == "fit: max rounds"
@@ -306,13 +310,83 @@ def test_canal_without_stages_is_described_and_reproducible(tmp_path):
     page = render_report(model, points, source="cone <1>")
     assert "canalsurf report — cone &lt;1&gt;" in page  # the name is escaped
     assert "A canal surface whose radius varies from 1 to 2 (mean 1.5)" in page
-    assert '<th title="seconds.shrink">shrink (s)</th><td>0.25</td>' in page
+    assert '<th title="seconds.shrink">time: shrink (s)</th><td>0.25</td>' in page
     assert "<td>canal</td><td>1.5 (1–2)</td><td>10</td><td>open, open</td>" in page  # the branch row
     imgs = [u for u in _parse(page).urls if u[0] == "img"]
     assert len(imgs) == 3  # S, spine, surface: no stages to show
     assert "<figcaption>shrunk" not in page and "<figcaption>thinned" not in page
     write_report(tmp_path / "r.html", model, points, source="cone <1>")
     assert (tmp_path / "r.html").read_text(encoding="utf-8") == page  # same input, same page
+
+
+def _inline_plotly_js() -> str:
+    from plotly.offline import get_plotlyjs
+
+    return f'<script type="text/javascript">{get_plotlyjs()}</script>'
+
+
+def test_shared_plotly_js_is_referred_to_instead_of_copied(tmp_path):
+    model, points = _canal(n=300)
+    alone = render_report(model, points, source="cone")
+    shared = render_report(model, points, source="cone", plotly_js="../plotly.min.js")
+    tag = '<script type="text/javascript" src="../plotly.min.js" charset="utf-8"></script>'
+    # the same page, with the one script tag in place of plotly.js itself
+    assert alone.count(_inline_plotly_js()) == 1 and shared == alone.replace(_inline_plotly_js(), tag)
+    assert len(alone) - len(shared) > 3_000_000  # plotly.js: megabytes per page
+    assert [u for u in _parse(shared).urls if u[0] == "script"] == [("script", "src", "../plotly.min.js")]
+    write_plotly_js(tmp_path / PLOTLY_JS_NAME)
+    script = (tmp_path / PLOTLY_JS_NAME).read_text("utf-8")
+    assert _inline_plotly_js() == f'<script type="text/javascript">{script}</script>'
+    assert [p.name for p in tmp_path.iterdir()] == [PLOTLY_JS_NAME]  # written atomically: no temporary left
+
+
+def _instant_pipe(points, *, progress=None, **kwargs) -> Network:
+    """Stands in for the pipeline: a straight pipe of radius 1 along x, at once."""
+    for stage in STAGES:
+        progress(stage)
+    u = np.linspace(0.0, 1.0, 5)
+    spine = make_interp_spline(u, np.column_stack([10 * u, 0 * u, 0 * u]), k=3)
+    return Network([CanalModel("pipe", spine, constant_spline(1.0), False)], [], {"R": 0.5}, {"n_points": len(points)})
+
+
+@pytest.fixture(scope="module")
+def batch_reports(tmp_path_factory):
+    """``canalsurf reconstruct a.xyz b.xyz -o out --report`` (the pipeline stood in for): the output folder."""
+    base = tmp_path_factory.mktemp("batch")
+    rng = np.random.default_rng(5)
+    x, s = rng.uniform(0, 10, 400), rng.uniform(0, 2 * np.pi, 400)
+    points = np.column_stack([x, np.cos(s), np.sin(s)])  # on the pipe _instant_pipe gives
+    for name in ("a.xyz", "b.xyz"):
+        np.savetxt(base / name, points)
+    saved = canalsurf.pipeline.reconstruct
+    canalsurf.pipeline.reconstruct = _instant_pipe  # (monkeypatch is function-scoped)
+    try:
+        code = cli.main(["reconstruct", str(base / "a.xyz"), str(base / "b.xyz"), "-o", str(base / "out"),
+                         "--report", "-q"])
+    finally:
+        canalsurf.pipeline.reconstruct = saved
+    assert code == 0
+    return base / "out"
+
+
+def test_cli_batch_reports_share_one_plotly_js(batch_reports):
+    out = batch_reports
+    assert sorted(p.name for p in out.iterdir()) == ["a", "b", PLOTLY_JS_NAME]
+    script = (out / PLOTLY_JS_NAME).read_text("utf-8")
+    assert _inline_plotly_js() == f'<script type="text/javascript">{script}</script>'
+    for name in ("a", "b"):
+        page = (out / name / "report.html").read_text(encoding="utf-8")
+        scripts = [u for u in _parse(page).urls if u[0] == "script"]
+        assert scripts == [("script", "src", f"../{PLOTLY_JS_NAME}")]  # relative: the folder can move
+        assert (out / name / scripts[0][2]).resolve() == (out / PLOTLY_JS_NAME).resolve()
+        assert len(page.encode("utf-8")) < 1_000_000 and "Plotly.newPlot" in page
+
+
+def test_cli_single_report_stands_alone(report_html):
+    page = report_html.read_text(encoding="utf-8")
+    assert page.count(_inline_plotly_js()) == 1
+    assert not (report_html.parent / PLOTLY_JS_NAME).exists()
+    assert [u for u in _parse(page).urls if u[0] == "script"] == []
 
 
 def test_missing_extra_names_it(monkeypatch):
@@ -544,6 +618,15 @@ def test_report_renders_in_headless_chromium(browser, report_html, tmp_path):
     height, width, _ = pixels.shape
     assert height > 300 and width > 600
     assert _scene_drawn(pixels), f"the 3-D view looks blank (screenshot {tmp_path / 'viewer-3d.png'})"
+
+
+def test_batch_report_loads_its_shared_plotly_js_in_headless_chromium(browser, batch_reports, tmp_path):
+    loaded = _open(browser, batch_reports / "b" / "report.html")  # waits until plotly has drawn both figures
+    pixels = _screenshot(loaded, tmp_path / "batch.png", _scene_drawn)
+    loaded.page.close()
+    loaded.check_clean()
+    assert (batch_reports / PLOTLY_JS_NAME).as_uri() in loaded.requests
+    assert _scene_drawn(pixels)
 
 
 def test_network_in_headless_chromium(browser, t_junction, tmp_path):

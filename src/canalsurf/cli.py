@@ -5,9 +5,16 @@ the only place in canalsurf that prints, configures logging and shows progress b
 
 Subcommands
     ``demo``         reconstruct the built-in Figure 9 pipe and compare with the truth (no input needed);
-    ``reconstruct``  point files -> model.json, surface mesh, spine.csv, spine.dxf;
+    ``reconstruct``  point files -> model.json, surface mesh, spine.csv, spine.dxf; on request report.html,
+                     points.ply, model.ifc, model.step, pipes.csv;
+    ``info``         what point files hold: points, bounding box, spacing, fields;
     ``synth``        write a sampled test surface as a point file;
     ``paper``        reproduce the paper's experiments (:mod:`canalsurf.experiments`).
+
+Slow imports wait until they are needed: SciPy's interpolation and the pipeline only for a
+reconstruction, :mod:`canalsurf.synth` only for ``synth`` and ``demo``, tqdm only for a progress bar
+on a terminal, the CAD/BIM writers only when asked for -- ``canalsurf --help`` or ``info`` on a small
+file does not pay for a reconstruction.
 
 Exit codes
     0 success; 1 a reconstruction failed (:class:`ReconstructionError`, or an unexpected internal
@@ -22,7 +29,11 @@ Outputs
     Each result folder is written as one unit, under a lock (:mod:`canalsurf._outputs`); files an
     earlier run wrote there and this run does not write (report.html without ``--report``) are
     removed.  Folder names made from input names are made safe (no ``..``, separators or names
-    Windows reserves) and every folder is checked to lie inside ``-o``.
+    Windows reserves) and every folder is checked to lie inside ``-o``.  The reports of several
+    inputs share one ``plotly.min.js`` in ``-o`` (written before the first of them) instead of each
+    holding its own copy; a single report holds its own and stands alone.  What a run does not
+    write and why (spine.dxf without ezdxf; no unit declared) is said in notes after the summary
+    lines, and in each ``--json`` record (``not_written``, ``notes``).
 """
 
 from __future__ import annotations
@@ -35,11 +46,13 @@ import json
 import logging
 import math
 import os
+import re
 import sys
 import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -67,8 +80,34 @@ DEMO_SURFACE, DEMO_POINTS, DEMO_SEED, DEMO_OUTDIR = "fig9-pipe", 2000, 0, "canal
 MAX_LENGTH = 1e15
 #: Mesh formats offered by ``--mesh-format`` (suffixes of :data:`canalsurf.io.MESH_FORMATS`).
 MESH_CHOICES = ("ply", "obj", "stl", "glb", "off")
-#: Point formats ``canalsurf synth`` writes: suffix -> family.
-#: Samples used for the spine length in summaries (far finer than any spine's knot spacing).
+#: Length units of ``--units`` (their DXF codes are :data:`canalsurf.io.DXF_UNITS`).
+UNITS = ("m", "mm", "ft", "in")
+#: The unit model.ifc, model.step and pipes.csv take without ``--units``: those formats need a real
+#: one (an IFC project declares its length unit, pipe sizes are millimetres or inches), so they
+#: assume metres, and the summary says so.
+DEFAULT_EXPORT_UNITS = "m"
+#: Pipe catalogues of ``--catalogue`` (:func:`canalsurf.piping.decompose`), the first the default.
+CATALOGUES = ("asme", "en")
+
+
+class _Export(NamedTuple):
+    """A CAD/BIM file the command line can write, and what writing it needs."""
+
+    file: str                    # the file written
+    module: str                  # the module of canalsurf that writes it, imported only when asked for
+    extra: str | None            # the extra that installs its libraries (None: needs nothing optional)
+    libraries: tuple[str, ...]   # those libraries, looked up (not imported) before any work
+
+
+#: The CAD/BIM exports by option.  The writers import their libraries only when they write, so the
+#: libraries are looked up here first: a missing extra fails in a moment, not after the reconstruction.
+EXPORTS = {"ifc": _Export("model.ifc", "ifc", "ifc", ("ifcopenshell",)),
+           "step": _Export("model.step", "step", "step", ("OCP",)),
+           "piping": _Export("pipes.csv", "piping", None, ())}
+#: What a note says of spine.dxf when ezdxf is not installed.
+DXF_MISSING = "needs the 'dxf' extra (pip install 'canalsurf[dxf]')"
+#: The bounding box of ``--crop``, as it is typed.
+CROP_FORMAT = "xmin,ymin,zmin,xmax,ymax,zmax"
 
 
 class _UsageError(Exception):
@@ -80,7 +119,29 @@ class _UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose errors become one ``canalsurf: error:`` line (see :func:`main`)."""
+    """ArgumentParser whose errors become one ``canalsurf: error:`` line (see :func:`main`).
+
+    ``complete(parser)``, if given, fills in what needs a slow import (the synth command's list of
+    surfaces) the first time this parser parses or shows its help, so other commands never pay for it.
+    """
+
+    def __init__(self, *args, complete: Callable[[argparse.ArgumentParser], None] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._complete = complete
+
+    def _completed(self) -> None:
+        if self._complete is not None:
+            complete, self._complete = self._complete, None
+            complete(self)
+
+    def parse_known_args(self, args=None, namespace=None):  # noqa: D102 -- argparse hook
+        self._completed()
+        args = _join_number_lists(sys.argv[1:] if args is None else list(args))
+        return super().parse_known_args(args, namespace)
+
+    def format_help(self):  # noqa: D102 -- argparse hook
+        self._completed()
+        return super().format_help()
 
     def error(self, message):  # noqa: D102 -- argparse hook
         raise _UsageError(" ".join(str(message).split()), self.prog)
@@ -128,6 +189,63 @@ def _output_folder(text: str) -> Path:
     return Path(text)
 
 
+def _crop_box(text: str) -> tuple[float, ...]:
+    """argparse ``type=`` for ``--crop``: six finite numbers, each minimum at most its maximum."""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 6 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {CROP_FORMAT} (six numbers separated by commas), got "
+                                         f"{text!r}")
+    for axis, low, high in zip("xyz", values[:3], values[3:]):
+        if low > high:
+            raise argparse.ArgumentTypeError(f"{axis}min {low:g} is larger than {axis}max {high:g} in {text!r}: "
+                                             f"give the lower corner first, {CROP_FORMAT}")
+    return values
+
+
+#: Options whose value is a list of numbers that may start with a minus sign (``--crop -5,0,0,...``):
+#: argparse would take such a value for an option.
+_NUMBER_LIST_OPTIONS = ("--crop",)
+
+
+def _join_number_lists(argv: list[str]) -> list[str]:
+    """``--crop -5,...`` as ``--crop=-5,...``, so a negative lower corner needs no ``=``."""
+    joined, i = [], 0
+    while i < len(argv):
+        word = argv[i]
+        if word in _NUMBER_LIST_OPTIONS and i + 1 < len(argv) and re.match(r"-[0-9.]", argv[i + 1]):
+            joined.append(f"{word}={argv[i + 1]}")
+            i += 2
+        else:
+            joined.append(word)
+            i += 1
+    return joined
+
+
+def _add_export_options(parser: argparse.ArgumentParser) -> None:
+    """--units and the CAD/BIM files, shared by reconstruct and demo."""
+    g = parser.add_argument_group("units, CAD and BIM files")
+    g.add_argument("--units", choices=UNITS,
+                   help="length unit of the input's coordinates: declared in spine.dxf ($INSUNITS) so CAD "
+                        "inserts it at scale, and the unit of model.ifc, model.step and pipes.csv (default: "
+                        "none given -- spine.dxf is unitless, and those three assume metres, as the "
+                        "summary says)")
+    g.add_argument("--ifc", action="store_true",
+                   help="also write model.ifc: the network as IFC pipe segments and fittings for BIM "
+                        "(needs the 'ifc' extra: pip install 'canalsurf[ifc]')")
+    g.add_argument("--step", action="store_true",
+                   help="also write model.step: the surfaces as a STEP solid model for CAD (needs the "
+                        "'step' extra: pip install 'canalsurf[step]')")
+    g.add_argument("--piping", action="store_true",
+                   help="also write pipes.csv: the network as a list of straight pipes and fittings of "
+                        "nominal sizes (--catalogue); with --ifc, model.ifc is built from the same pieces")
+    g.add_argument("--catalogue", choices=CATALOGUES,
+                   help=f"pipe sizes of --piping: asme (NPS, inches) or en (DN, millimetres); default "
+                        f"{CATALOGUES[0]}")
+
+
 def _add_global_options(parser: argparse.ArgumentParser, *, in_subcommand: bool) -> None:
     """-v / -q / --json, accepted before and after the subcommand.
 
@@ -158,6 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf demo                                # try it: no input needed\n"
                "  canalsurf reconstruct scan.ply -o out/         # model.json, surface.ply, spine.csv\n"
                "  canalsurf reconstruct *.las -o results/ -v     # one folder per input, with a log\n"
+               "  canalsurf info scan.laz                        # points, extent, spacing, fields\n"
                "  canalsurf synth fig14-canal -o canal.ply       # a test cloud\n"
                "  canalsurf synth --list\n\n"
                "exit codes: 0 success, 1 reconstruction failed (not a tube) or an internal error, 2 bad "
@@ -184,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", action="store_true",
                    help="also write DIR/report.html, a self-contained page with a 3-D view, the radius "
                         "and the stages (needs the 'report' extra)")
+    _add_export_options(p)
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_demo)
 
@@ -199,13 +319,17 @@ def build_parser() -> argparse.ArgumentParser:
                     "parameters, diagnostics\n"
                     "  surface.<fmt>   triangle mesh (watertight: tubes united at junctions, ends capped)\n"
                     "  spine.csv       branch,t,x,y,z,radius at points evenly spaced along each spine\n"
-                    "  spine.dxf       each spine as a CAD SPLINE with radii (needs ezdxf; skipped "
-                    "without)\n"
+                    "  spine.dxf       each spine as a CAD SPLINE with radii, in --units (needs the 'dxf' "
+                    "extra;\n                  without it a note says it was not written)\n"
                     "  report.html     with --report: one self-contained page (works offline) with a 3-D "
                     "view of\n                  points, spines, junctions and surface, the radii, the "
                     "stages and the parameters\n"
                     "  points.ply      with --labels: the input points with their branch (-1: on no tube) "
                     "and signed distance\n"
+                    "  model.ifc       with --ifc: pipe segments and fittings for BIM ('ifc' extra)\n"
+                    "  model.step      with --step: the surfaces as a STEP solid model ('step' extra)\n"
+                    "  pipes.csv       with --piping: straight pipes and fittings of nominal sizes "
+                    "(--catalogue)\n"
                     "With one INPUT the files go into OUTDIR itself, with several into "
                     "OUTDIR/<input name>/.\nAn input that fails is reported and the others go on; "
                     "nothing is written for it.\n\n"
@@ -217,7 +341,9 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf reconstruct a.xyz b.xyz c.laz -o results/ --mesh-format stl\n"
                "  canalsurf reconstruct pipe.ply -o out/ --kind pipe -R 0.2 --delta 0.05 -v\n"
                "  canalsurf reconstruct scan.e57 -o out/ --json > summary.jsonl\n"
-               "  canalsurf reconstruct scan.ply -o out/ --report  # and out/report.html\n\n"
+               "  canalsurf reconstruct scan.ply -o out/ --report  # and out/report.html\n"
+               "  canalsurf reconstruct plant.laz -o out/ --units m --ifc --piping --catalogue en\n"
+               "  canalsurf reconstruct scan.e57 -o out/ --crop -5,-5,0,5,5,3 --voxel 0.01\n\n"
                "exit codes: 0 all inputs succeeded; otherwise the highest of the failures' codes "
                "(2 bad input, 1 reconstruction failed or an internal error); 130/143 interrupted.\n"
                "A run into a folder removes the files an earlier run wrote there and it does not write "
@@ -257,6 +383,15 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--normals", choices=("auto", "estimate"), default="auto",
                    help="auto (default): use the file's normals if it has them; estimate: always "
                         "estimate them")
+    g = p.add_argument_group("input points (applied in this order, after reading, before reconstructing)")
+    g.add_argument("--crop", type=_crop_box, metavar=CROP_FORMAT.upper(),
+                   help="keep only the points inside this box (faces included), in the input's units; "
+                        "'canalsurf info FILE' shows the points' bounding box")
+    g.add_argument("--voxel", type=_LENGTH, metavar="SIZE",
+                   help="keep at most one point per cube of edge SIZE, in the input's units: the point "
+                        "nearest the centroid of the points in its cube, a measured point with its own "
+                        "normal (the centroid would sit inside a curved surface and shrink the radius); "
+                        "thins dense scans, e.g. to a tenth of the smallest radius")
     g = p.add_argument_group("files")
     g.add_argument("--mesh-format", choices=MESH_CHOICES, default="ply",
                    help="format of surface.<fmt> (default ply; obj stl glb off need trimesh)")
@@ -269,14 +404,34 @@ def build_parser() -> argparse.ArgumentParser:
                         "from the surface, the junctions, the radius along each branch, the stages and "
                         "the parameters (needs the 'report' extra: pip install 'canalsurf[report]')")
     g.add_argument("--labels", action="store_true",
-                   help="also write points.ply: the input points with the branch each lies on (-1: on "
-                        "no tube) and its signed distance from the surface, to colour or split the scan")
+                   help="also write points.ply: the input points (those inside --crop, all of them even "
+                        "with --voxel) with the branch each lies on (-1: on no tube) and its signed distance "
+                        "from the surface, to colour or split the scan")
+    _add_export_options(p)
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_reconstruct)
 
-    # synth -----------------------------------------------------------------------------------------
-    from .synth import NETWORKS, SURFACES, make_network
+    # info ------------------------------------------------------------------------------------------
+    from .pointcloud import SPACING_SAMPLE
 
+    p = sub.add_parser(
+        "info", formatter_class=fmt, help="what point files hold: points, extent, spacing, fields",
+        description="Describe each FILE without reconstructing it: its format, the number of points, "
+                    "whether it has normals\nand which other per-point fields it stores (intensity, "
+                    "colour, classification, ...), the bounding box\nand the typical spacing (the median "
+                    "distance from a point to its nearest neighbour, over a seeded\nsample of at most "
+                    f"{SPACING_SAMPLE} points).  Nothing is written.\n\n"
+                    f"Point formats: {' '.join(POINT_FORMATS)} (.las/.laz, .pcd, .e57 need extras).",
+        epilog="examples:\n"
+               "  canalsurf info scan.ply\n"
+               "  canalsurf info a.laz b.e57 --json > clouds.jsonl\n\n"
+               "exit codes: 0 every file was read; 2 a file could not be read (it is reported, the others "
+               "are still described).")
+    p.add_argument("inputs", nargs="+", metavar="FILE", type=Path, help="point cloud file(s)")
+    _add_global_options(p, in_subcommand=True)
+    p.set_defaults(handler=_cmd_info)
+
+    # synth -----------------------------------------------------------------------------------------
     def whole(low: int, what: str) -> Callable[[str], int]:
         """argparse ``type=`` for an integer >= ``low`` of any size (never converted to float, so a huge
         one cannot overflow; make_tube / make_network refuse one too large for memory)."""
@@ -293,13 +448,26 @@ def build_parser() -> argparse.ArgumentParser:
 
         return convert
 
+    def synth_details(parser: argparse.ArgumentParser) -> None:
+        """What the synth command takes from canalsurf.synth, imported only when synth is used."""
+        from .synth import NETWORKS, SURFACES, make_network
+
+        defaults = make_network.__kwdefaults__
+        parser.description += f"\n\nSurfaces: {', '.join(SURFACES)}.\nNetworks: {', '.join(NETWORKS)} (see --list)."
+        name.choices = (*SURFACES, *NETWORKS)
+        n.help = (f"number of points (default {DEMO_POINTS} for a surface, as in the paper; {defaults['n']} "
+                  "for a network, clutter included)")
+        noise.help = ("half-width of the offset along the normal: for a surface in its units (default: the "
+                      "paper's value for NAME); for a network RELATIVE to the local radius, below 0.5 (default "
+                      f"{defaults['noise']:g}: ±{100 * defaults['noise']:g} %% of the radius); with --scanner the "
+                      "standard deviation along the ray, in the scene's units")
+
     p = sub.add_parser(
-        "synth", formatter_class=fmt, help="write a sampled test surface or tube network",
+        "synth", formatter_class=fmt, help="write a sampled test surface or tube network", complete=synth_details,
         description="Sample one of the built-in surfaces with a uniform random offset along the normal "
                     "(the paper's epsilon), or one of the tube networks (branches joined at junctions, "
                     "racks, crossings, clutter; noise relative to the radius), and write the points.  The "
-                    f"format follows FILE's suffix: {' '.join(POINT_WRITE_FORMATS)}.\n\n"
-                    f"Surfaces: {', '.join(SURFACES)}.\nNetworks: {', '.join(NETWORKS)} (see --list).",
+                    f"format follows FILE's suffix: {' '.join(POINT_WRITE_FORMATS)}.",
         epilog="examples:\n"
                "  canalsurf synth --list\n"
                "  canalsurf synth fig9-pipe -o pipe.ply\n"
@@ -308,18 +476,12 @@ def build_parser() -> argparse.ArgumentParser:
                "  canalsurf synth t-junction -o tee.ply --noise 0.01 --clutter 0.2   # a network on a floor\n"
                "  canalsurf synth plant -o plant.ply --n 1000000 --size 10\n"
                "  canalsurf synth scene -o scan.ply --scanner 2 --quantum 0.01   # what 2 scanners see")
-    p.add_argument("name", nargs="?", metavar="NAME", choices=(*SURFACES, *NETWORKS),
-                   help="surface or network to sample")
+    # NAME's choices and the defaults in the help of --n and --noise: synth_details
+    name = p.add_argument("name", nargs="?", metavar="NAME", help="surface or network to sample")
     p.add_argument("-o", "--output", metavar="FILE", type=Path, help="point file to write")
     p.add_argument("--list", action="store_true", help="list the surfaces and networks and exit")
-    p.add_argument("--n", type=whole(1, "a positive integer"),
-                   help=f"number of points (default {DEMO_POINTS} for a surface, as in the paper; "
-                        f"{make_network.__kwdefaults__['n']} for a network, clutter included)")
-    p.add_argument("--noise", type=_number(float, low=0, what="a number >= 0"),
-                   help="half-width of the offset along the normal: for a surface in its units (default: "
-                        "the paper's value for NAME); for a network RELATIVE to the local radius, below 0.5 "
-                        f"(default {make_network.__kwdefaults__['noise']:g}: ±2 %% of the radius); with "
-                        "--scanner the standard deviation along the ray, in the scene's units")
+    n = p.add_argument("--n", type=whole(1, "a positive integer"))
+    noise = p.add_argument("--noise", type=_number(float, low=0, what="a number >= 0"))
     p.add_argument("--seed", type=whole(0, "a non-negative integer"), default=0,
                    help="random seed, an integer >= 0 (default 0)")
     p.add_argument("--normals", action="store_true", help="also write the true normals (nx, ny, nz)")
@@ -546,12 +708,17 @@ def _dxf_available() -> bool:
 
 
 def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_points=None,
-                  source: str | None = None, label_points=None) -> dict[str, Callable]:
+                  source: str | None = None, label_points=None, units: str | None = None,
+                  exports: dict | None = None, catalogue: str | None = None,
+                  plotly_js: str | None = None) -> dict[str, Callable]:
     """Everything a reconstruction writes, computed now; name -> ``write(path)`` callables.
 
-    With ``report_points`` (the input points) the files include ``report.html`` about ``source``;
-    with ``label_points`` (the input points) ``points.ply``, each point with its branch id (-1: on no
-    tube) and its signed distance from the surface.
+    With ``report_points`` (the input points) the files include ``report.html`` about ``source``
+    (referring to a shared plotly.js at ``plotly_js`` if given); with ``label_points`` (the input
+    points) ``points.ply``, each point with its branch id (-1: on no tube) and its signed distance
+    from the surface.  ``units`` is declared in spine.dxf; ``exports`` (option -> module, from
+    :func:`_export_modules`) adds model.ifc, model.step and pipes.csv, in ``units`` or, without,
+    :data:`DEFAULT_EXPORT_UNITS`.
 
     Raises
     ------
@@ -580,16 +747,90 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
     }
     if _dxf_available():
         splines = [(b.spine.t, b.spine.c, b.spine.k, s[2], s[3]) for b, s in zip(model.branches, samples)]
-        files["spine.dxf"] = lambda path: write_spine_dxf(path, splines)
+        files["spine.dxf"] = lambda path: write_spine_dxf(path, splines, units=units)
+    files.update(_export_files(model, exports or {}, units=units or DEFAULT_EXPORT_UNITS,
+                               catalogue=catalogue or CATALOGUES[0]))
     if label_points is not None:
         label, distance = model.classify(label_points)
         files["points.ply"] = lambda path: write_labelled_points(path, label_points, label, distance)
     if report_points is not None:
         from .report import render_report
 
-        page = render_report(model, report_points, source=source)
+        page = render_report(model, report_points, source=source, plotly_js=plotly_js)
         files["report.html"] = lambda path: path.write_text(page, encoding="utf-8")
     return files
+
+
+def _export_files(model, exports: dict, *, units: str, catalogue: str) -> dict[str, Callable]:
+    """model.ifc, model.step and pipes.csv as asked for (``exports``: option -> module).
+
+    The pipe pieces are decomposed now, once, and model.ifc is built from the same pieces when
+    both are asked for.
+    """
+    files = {}
+    pieces = None
+    if "piping" in exports:
+        piping = exports["piping"]
+        with _warnings_to_log():
+            pieces = piping.decompose(model, units=units, catalogue=catalogue)
+        files[EXPORTS["piping"].file] = lambda path: piping.write_pipes_csv(path, pieces, units=units)
+    if "ifc" in exports:
+        ifc = exports["ifc"]
+        shared = {} if pieces is None else {"pieces": pieces}
+        files[EXPORTS["ifc"].file] = lambda path: ifc.write_ifc(path, model, units=units, **shared)
+    if "step" in exports:
+        step = exports["step"]
+        files[EXPORTS["step"].file] = lambda path: step.write_step(path, model, units=units)
+    return files
+
+
+def _export_modules(args) -> dict:
+    """The modules of the exports asked for (option -> module), imported now and their libraries
+    looked up, so that a missing extra fails before any work."""
+    modules = {}
+    for option, export in EXPORTS.items():
+        if not getattr(args, option, False):
+            continue
+        try:
+            modules[option] = importlib.import_module(f".{export.module}", __package__)
+            found = all(importlib.util.find_spec(library) is not None for library in export.libraries)
+        except ImportError:
+            found = False
+        if not found and export.extra is None:
+            raise InputError(f"--{option} (writing {export.file}) needs the module canalsurf.{export.module}, "
+                             "which cannot be imported — reinstall canalsurf")
+        if not found:
+            raise InputError(f"--{option} (writing {export.file}) needs the '{export.extra}' extra — "
+                             f"pip install 'canalsurf[{export.extra}]'")
+    if getattr(args, "catalogue", None) is not None and "piping" not in modules:
+        raise _UsageError("--catalogue chooses the pipe sizes of --piping: add --piping", f"{PROG} {args.command}")
+    return modules
+
+
+def _run_notes(args, exports: dict) -> tuple[dict[str, str], list[str]]:
+    """What a run does not write, and why (file -> reason), and the notes the summary ends with."""
+    not_written = {} if _dxf_available() else {"spine.dxf": DXF_MISSING}
+    notes = [f"{name} not written: {why}" for name, why in not_written.items()]
+    if args.units is None:
+        said = []
+        if "spine.dxf" not in not_written:
+            said.append("spine.dxf is unitless")
+        assumed = [EXPORTS[option].file for option in exports]
+        if assumed:
+            said.append(f"{_and(assumed)} assume {_UNIT_NAMES[DEFAULT_EXPORT_UNITS]}")
+        if said:
+            notes.append(f"no --units given: {'; '.join(said)} — give --units {'|'.join(UNITS)} to state the "
+                         "unit of the input's coordinates")
+    return not_written, notes
+
+
+#: Units as the notes name them.
+_UNIT_NAMES = {"m": "metres", "mm": "millimetres", "ft": "feet", "in": "inches"}
+
+
+def _and(words: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
 
 
 def _check_report_extra() -> None:
@@ -731,6 +972,52 @@ def _failure(path: Path, exc: Exception) -> tuple[str, int]:
     return f"{path}: {_internal_error(exc)}", EXIT_FAILED
 
 
+def _prepare_points(path: Path, points, normals, args) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, dict]:
+    """``--crop`` then ``--voxel`` (:mod:`canalsurf.pointcloud`).
+
+    Returns the points inside the crop box (all of them: what ``--labels`` labels), the points and
+    normals left after the voxel grid (what is reconstructed) and a record of what was done (for the
+    summary).
+    """
+    from ._validate import MIN_POINTS
+    from .pointcloud import crop, voxel_downsample
+
+    record = {"points_read": len(points)}
+    if args.crop is not None:
+        inside, normals = crop(points, args.crop, normals=normals)
+        if not len(inside):
+            # crop has checked the points are finite
+            span = ", ".join(f"{axis} {a:.6g}..{b:.6g}" for axis, a, b in zip("xyz", points.min(axis=0),
+                                                                              points.max(axis=0)))
+            raise InputError(f"{path}: no points inside the crop box {','.join(f'{v:g}' for v in args.crop)} (the "
+                             f"points span {span}) — give a box that overlaps them ('canalsurf info {path}')")
+        points = inside
+        record["crop"] = list(args.crop)
+        record["points_in_crop"] = len(points)
+    region = points
+    if args.voxel is not None:
+        kept, normals = voxel_downsample(points, args.voxel, normals=normals)
+        if len(kept) < MIN_POINTS <= len(points):
+            raise InputError(f"{path}: only {len(kept)} of {len(points)} points are left after --voxel {args.voxel:g}, "
+                             f"fewer than the {MIN_POINTS} a reconstruction needs — give a smaller --voxel")
+        points = kept
+        record["voxel"] = args.voxel
+        record["points_after_voxel"] = len(points)
+    record["points"] = len(points)
+    return region, points, normals, record
+
+
+def _prepared_text(record: dict) -> str:
+    """``1532 of 2000 points in the crop box, 801 after --voxel 0.05; `` (empty if nothing was done)."""
+    parts = []
+    if "crop" in record:
+        parts.append(f"{record['points_in_crop']} of {record['points_read']} points in the crop box")
+    if "voxel" in record:
+        before = record.get("points_in_crop", record["points_read"])
+        parts.append(f"{record['points_after_voxel']} of {before} points left by --voxel {record['voxel']:g}")
+    return "; ".join(parts) + "; " if parts else ""
+
+
 def _cmd_reconstruct(args, console: _Console) -> int:
     from .io import read_points
 
@@ -742,19 +1029,22 @@ def _cmd_reconstruct(args, console: _Console) -> int:
                              "pip install 'canalsurf[mesh]', or use --mesh-format ply") from None
     if args.report:
         _check_report_extra()
+    exports = _export_modules(args)
     _check_output_folder(args.output)
-    if not _dxf_available():
-        log.info("ezdxf is not installed: spine.dxf is skipped (pip install 'canalsurf[dxf]')")
+    not_written, notes = _run_notes(args, exports)
     options = {"kind": args.kind, "R": args.R, "delta": args.delta, "mu": args.mu, "tau": args.tau,
                "H": args.H, "k": args.k, "stop": args.stop, "neighbours": args.neighbours,
                "refine": args.refine}
     several = len(args.inputs) > 1
+    # Reports of a batch share one plotly.js in OUTDIR (4.6 MB each otherwise); one report stands alone.
+    shared_js = several and args.report
     names = _folder_names(args.inputs)
-    worst = EXIT_OK
+    worst, done = EXIT_OK, 0
     for path, name in zip(args.inputs, names):
         folder = args.output / name if several else args.output
         try:
             points, normals = read_points(path)
+            region, points, normals, prepared = _prepare_points(path, points, normals, args)
             if args.normals == "estimate":
                 normals = None
             if args.k is not None and args.k > len(points):
@@ -766,8 +1056,12 @@ def _cmd_reconstruct(args, console: _Console) -> int:
             model = _reconstruct_cloud(points, normals, str(path), options, console)
             files = _output_files(model, mesh_format=args.mesh_format, caps=args.caps,
                                   report_points=points if args.report else None, source=str(path),
-                                  label_points=points if args.labels else None)
+                                  label_points=region if args.labels else None, units=args.units,
+                                  exports=exports, catalogue=args.catalogue,
+                                  plotly_js=f"../{_plotly_js_name()}" if shared_js else None)
             try:
+                if shared_js and not done:
+                    _write_shared_plotly_js(args.output)
                 written = _write_files(folder, files, inside=args.output)
             except OSError as exc:
                 raise _output_error(exc, folder) from None
@@ -777,9 +1071,29 @@ def _cmd_reconstruct(args, console: _Console) -> int:
             console.record({"input": str(path), "outdir": str(folder), "error": message, "exit_code": code})
             worst = max(worst, code)
             continue
-        console.record(_summary(str(path), folder, model, written))
-        console.say(f"{path}: {_describe(model)} -> {folder}{os.sep} ({', '.join(f.name for f in written)})")
+        done += 1
+        console.record(_summary(str(path), folder, model, written) | prepared |
+                       {"units": args.units, "not_written": not_written, "notes": notes})
+        console.say(f"{path}: {_prepared_text(prepared)}{_describe(model)} -> {folder}{os.sep} "
+                    f"({', '.join(f.name for f in written)})")
+    if done:
+        for note in notes:
+            console.say(f"note: {note}")
     return worst
+
+
+def _plotly_js_name() -> str:
+    from .report import PLOTLY_JS_NAME
+
+    return PLOTLY_JS_NAME
+
+
+def _write_shared_plotly_js(folder: Path) -> None:
+    """Write OUTDIR/plotly.min.js, which the reports of a batch refer to, before the first of them."""
+    from .report import write_plotly_js
+
+    _make_dirs(folder)
+    write_plotly_js(folder / _plotly_js_name())
 
 
 # --------------------------------------------------------------------------------------------------
@@ -793,13 +1107,16 @@ def _cmd_demo(args, console: _Console) -> int:
     folder = args.output
     if args.report:
         _check_report_extra()
+    exports = _export_modules(args)
     _check_output_folder(folder)
+    not_written, notes = _run_notes(args, exports)
     tube = make_tube(DEMO_SURFACE, n=DEMO_POINTS, rng=DEMO_SEED)
     log.info("demo: %s, %d points, noise %g, seed %d", DEMO_SURFACE, DEMO_POINTS, tube.noise, DEMO_SEED)
     model = _reconstruct_cloud(tube.points, None, "demo", {}, console)
     files = {"input.ply": lambda path: write_points(path, tube.points, None)}
     files.update(_output_files(model, report_points=tube.points if args.report else None,
-                               source=f"canalsurf demo ({DEMO_SURFACE})"))
+                               source=f"canalsurf demo ({DEMO_SURFACE})", units=args.units, exports=exports,
+                               catalogue=args.catalogue))
     try:
         written = _write_files(folder, files)
     except OSError as exc:
@@ -809,7 +1126,7 @@ def _cmd_demo(args, console: _Console) -> int:
     true_r = m["mean_radius"]
     summary = _summary(str(folder / "input.ply"), folder, model, written)
     summary.update(surface=DEMO_SURFACE, true_radius=true_r, spine_length=_spine_length(model),
-                   metrics=m)
+                   metrics=m, units=args.units, not_written=not_written, notes=notes)
     console.record(summary)
     pct = 100.0 / true_r
     console.say(f"canalsurf demo: {SURFACES[DEMO_SURFACE][-1]}")
@@ -822,8 +1139,55 @@ def _cmd_demo(args, console: _Console) -> int:
                 "of the radius (closest-point distance to the true spine)")
     console.say(f"  radius error   mean {m['radius']['mean'] * pct:.2f} %, max {m['radius']['max'] * pct:.2f} %")
     console.say(f"  files written  {', '.join(str(f) for f in written)}")
+    for note in notes:
+        console.say(f"  note           {note}")
     console.say(f"  next: canalsurf reconstruct {folder / 'input.ply'} -o OUTDIR -v")
     return EXIT_OK
+
+
+# --------------------------------------------------------------------------------------------------
+# info
+
+
+def _cmd_info(args, console: _Console) -> int:
+    from .io import point_file_info, read_points
+    from .pointcloud import SPACING_SAMPLE, point_spacing
+
+    worst = EXIT_OK
+    for path in args.inputs:
+        try:
+            # read_points first: it checks the whole file, so its header is then safe to read again
+            points, normals = read_points(path)
+            info = point_file_info(path)
+            finite = np.isfinite(points).all(axis=1)
+            good = points if finite.all() else points[finite]
+            spacing = point_spacing(good) if len(good) else math.nan
+        except Exception as exc:  # noqa: BLE001 -- even a bug fails this file only
+            message, code = _failure(path, exc)
+            console.error(message)
+            console.record({"input": str(path), "error": message, "exit_code": code})
+            worst = max(worst, code)
+            continue
+        lo, hi = (good.min(axis=0), good.max(axis=0)) if len(good) else (None, None)
+        sample = min(len(good), SPACING_SAMPLE)
+        console.record({"input": str(path), "format": info.format, "points": len(points),
+                        "normals": normals is not None, "fields": list(info.fields),
+                        "non_finite_points": int(len(points) - len(good)),
+                        "bounds": None if lo is None else {"min": lo.tolist(), "max": hi.tolist()},
+                        "size": None if lo is None else (hi - lo).tolist(),
+                        "spacing": None if math.isnan(spacing) else spacing, "spacing_sample": sample})
+        console.say(f"{path}: {info.format}; {_count(len(points), 'point')}, "
+                    f"{'with' if normals is not None else 'no'} normals")
+        if len(good) < len(points):
+            console.say(f"  not finite     {len(points) - len(good)} points with NaN or inf coordinates (left "
+                        "out below; a reconstruction refuses them)")
+        if lo is not None:
+            extent = ", ".join(f"{axis} {a:.6g} .. {b:.6g}" for axis, a, b in zip("xyz", lo, hi))
+            console.say(f"  bounding box   {extent}  (size {' x '.join(f'{d:.4g}' for d in hi - lo)})")
+        console.say(f"  spacing        {'—' if math.isnan(spacing) else f'{spacing:.4g}'}  (median distance to "
+                    f"the nearest point, over {'all ' if sample == len(good) else ''}{sample} points)")
+        console.say(f"  fields         {' '.join(info.fields) or '—'}")
+    return worst
 
 
 # --------------------------------------------------------------------------------------------------

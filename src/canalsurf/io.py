@@ -14,7 +14,10 @@ Point formats (``POINT_FORMATS``)
 Mesh formats (``MESH_FORMATS``)
     ``.ply`` (plyfile, core), ``.obj .stl .off .glb`` (trimesh, extra ``mesh``).
 Other writers
-    :func:`write_spine_csv`, :func:`write_spine_dxf` (ezdxf, extra ``dxf``), :func:`write_json`.
+    :func:`write_spine_csv`, :func:`write_spine_dxf` (ezdxf, extra ``dxf``; the drawing's unit from
+    ``units``), :func:`write_json`.
+What a file holds
+    :func:`point_file_info`: the format and the per-point fields, from the header.
 
 Hostile files.  Each reader checks what can be checked from a file's start before reading it whole:
 the leading bytes, the header against the file's size (PLY, .npy and each .npz member, PCD, LAS/LAZ
@@ -52,8 +55,12 @@ from .errors import InputError
 __all__ = [
     "MESH_FORMATS",
     "POINT_FORMATS",
+    "POINT_FORMAT_NAMES",
     "POINT_WRITE_FORMATS",
+    "DXF_UNITS",
+    "PointFileInfo",
     "atomic_write",
+    "point_file_info",
     "read_points",
     "write_points",
     "write_json",
@@ -76,6 +83,11 @@ _LAS_NORMALS = (("normal_x", "normal_y", "normal_z"), ("normalx", "normaly", "no
 
 #: Application id under which :func:`write_spine_dxf` stores radii as DXF extended data.
 DXF_APPID = "CANALSURF"
+#: Length units a drawing can declare, with their DXF ``$INSUNITS`` codes (AutoCAD's table: 1 inches,
+#: 2 feet, 4 millimetres, 6 metres; 0 is "unitless", written when no unit is given).
+DXF_UNITS = {"m": 6, "mm": 4, "ft": 2, "in": 1}
+#: ``$INSUNITS`` of a drawing whose unit is not known.
+DXF_UNITLESS = 0
 #: Point formats :func:`write_points` writes, by suffix.
 POINT_WRITE_FORMATS = {".ply": "ply", ".xyz": "text", ".txt": "text", ".asc": "text", ".csv": "csv",
                  ".npy": "npy", ".npz": "npz"}
@@ -1039,15 +1051,39 @@ def read_points(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     coordinates in PCD (PCL's organized clouds).  Nothing else is checked here -- finiteness and
     point count are checked by the pipeline.
 
+    See Also
+    --------
+    point_file_info : the format and the per-point fields of a file, without reading its points.
+    canalsurf.pointcloud.crop, canalsurf.pointcloud.voxel_downsample : keep part of the points.
+    canalsurf.reconstruct : what the points are usually read for.
+
     Examples
     --------
+    A text file with a header line, then a PLY file with normals:
+
     >>> import pathlib, tempfile
+    >>> import numpy as np
     >>> folder = pathlib.Path(tempfile.mkdtemp())
     >>> _ = (folder / "cloud.csv").write_text("x,y,z\\n0,0,0\\n1,0,0\\n0,1,0.5\\n")
     >>> points, normals = read_points(folder / "cloud.csv")
     >>> points.shape, normals is None
     ((3, 3), True)
+    >>> write_points(folder / "cloud.ply", points, np.tile([0.0, 0.0, 1.0], (3, 1)))
+    >>> points, normals = read_points(folder / "cloud.ply")
+    >>> points[2], normals[2]
+    (array([0. , 1. , 0.5]), array([0., 0., 1.]))
+
+    A scan is then reconstructed with its normals, if it has them::
+
+        network = canalsurf.reconstruct(points, normals=normals)
     """
+    path, reader = _reader(path)
+    _check_readable(path)
+    return reader(path)
+
+
+def _reader(path: PathLike) -> tuple[pathlib.Path, Callable]:
+    """``path`` as a Path and the reader of its suffix, or the error that lists the known suffixes."""
     path = _as_path(path)
     reader = _READERS.get(path.suffix.lower())
     if reader is None:
@@ -1055,8 +1091,173 @@ def read_points(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
             f"{path}: unknown point format {path.suffix or '(no suffix)'!r} — "
             f"use one of {', '.join(POINT_FORMATS)}"
         )
+    return path, reader
+
+
+class PointFileInfo(NamedTuple):
+    """What :func:`point_file_info` finds in a point file's header."""
+
+    #: The format as a person names it, with the details a header gives: ``"PLY, binary little-endian"``,
+    #: ``"LAS 1.4, point format 6"``, ``"text, comma separated"``.
+    format: str
+    #: The per-point fields the file stores, in the file's own spelling and order (``x y z nx ny nz``
+    #: for a file with normals; LAS: every dimension of its point format, e.g. ``intensity``,
+    #: ``classification``, ``gps_time``; E57: the fields of any of its scans).
+    fields: tuple[str, ...]
+
+
+#: Names of the point formats by suffix, as :attr:`PointFileInfo.format` starts.
+POINT_FORMAT_NAMES = {".ply": "PLY", ".xyz": "text", ".txt": "text", ".csv": "text", ".asc": "text",
+                      ".npy": "NumPy .npy", ".npz": "NumPy .npz", ".pcd": "PCD", ".las": "LAS", ".laz": "LAZ",
+                      ".e57": "E57"}
+#: The PLY header's names of its encodings, as a person writes them.
+_PLY_ENCODINGS = {"ascii": "ASCII", "binary_little_endian": "binary little-endian",
+                  "binary_big_endian": "binary big-endian"}
+#: Field names of a file that stores coordinates and, perhaps, normals only (text, NumPy).
+_XYZ, _XYZ_NORMALS = ("x", "y", "z"), ("x", "y", "z", "nx", "ny", "nz")
+
+
+def point_file_info(path: PathLike) -> PointFileInfo:
+    """The format of a point file and the per-point fields it stores, read from its header.
+
+    What :func:`read_points` returns are the coordinates and normals; a scan often carries more
+    (intensity, colour, classification, return numbers, time), which this names -- to see what a
+    file holds before reconstructing it (``canalsurf info``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file with one of the suffixes in :data:`POINT_FORMATS`.
+
+    Returns
+    -------
+    PointFileInfo
+        ``format`` (e.g. ``"PLY, binary little-endian"``) and ``fields`` (e.g. ``("x", "y", "z",
+        "intensity")``).
+
+    Raises
+    ------
+    InputError
+        As :func:`read_points`, for the header: unknown suffix, a file that is missing, unreadable,
+        not of its format, or whose optional library is missing.  A file whose header reads may
+        still fail in :func:`read_points`, whose checks of the data this does not repeat.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "cloud.ply"
+    >>> write_points(path, np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1)))
+    >>> point_file_info(path)
+    PointFileInfo(format='PLY, binary little-endian', fields=('x', 'y', 'z', 'nx', 'ny', 'nz'))
+    """
+    path, reader = _reader(path)
     _check_readable(path)
-    return reader(path)
+    name = POINT_FORMAT_NAMES[path.suffix.lower()]
+    if reader is _read_ply:
+        detail, fields = _ply_fields(path)
+    elif reader is _read_text:
+        detail, fields = _text_fields(path)
+    elif reader is _read_numpy:
+        detail, fields = _numpy_fields(path)
+    elif reader is _read_pcd:
+        detail, fields = _pcd_fields(path)
+    elif reader is _read_las:
+        detail, fields = _las_fields(path)
+    else:
+        detail, fields = _e57_fields(path)
+    return PointFileInfo(f"{name}, {detail}" if detail else name, tuple(fields))
+
+
+def _ply_fields(path: pathlib.Path) -> tuple[str, list[str]]:
+    fix = "re-export the file"
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_HEADER_BYTES)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise InputError(f"{path}: not a PLY file (no 'ply' ... 'end_header' header) — {fix}")
+    try:
+        lines = [line.split() for line in head[:end].decode("ascii").splitlines()]
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a readable PLY file (its header is not ASCII) — {fix}") from None
+    encoding, fields, element = "", [], None
+    for words in lines:
+        if words[:1] == ["format"] and len(words) > 1:
+            encoding = _PLY_ENCODINGS.get(words[1], words[1])
+        elif words[:1] == ["element"] and len(words) > 1:
+            element = words[1]
+        elif words[:1] == ["property"] and len(words) > 2 and element == "vertex":
+            fields.append(words[-1])  # 'property float x', 'property list uchar int x'
+    return encoding, fields
+
+
+def _text_fields(path: pathlib.Path) -> tuple[str, list[str]]:
+    _check_text_start(path)
+    try:
+        head = _first_lines(path, 2)
+    except UnicodeDecodeError:
+        raise _not_text(path) from None
+    if not head:
+        raise InputError(f"{path}: holds no data rows — export the points as text, one point a line")
+    first = head[0][1]
+    data = first if _is_numeric_row(_fields(first, _sniff_delimiter(first))) else head[-1][1]
+    delimiter = _sniff_delimiter(data)
+    detail = {";": "semicolon separated", "\t": "tab separated", ",": "comma separated"}.get(
+        delimiter, "space separated")
+    if data is not first:  # a header line names the columns
+        return detail, _fields(first, delimiter)
+    return detail, list(_XYZ_NORMALS if len(_fields(data, delimiter)) == 6 else _XYZ)
+
+
+def _numpy_fields(path: pathlib.Path) -> tuple[str, list[str]]:
+    kind = _numpy_kind(path)
+    if kind is None:
+        raise InputError(f"{path}: not a NumPy {path.suffix.lower()} file (it lacks the format's leading bytes) "
+                         "— save the points with numpy.save or numpy.savez")
+    fix = "save with numpy.save or numpy.savez"
+    if kind == "npy":
+        with open(path, "rb") as fh:
+            shape, dtype, _ = _npy_header(fh, path, "NumPy .npy", fix)
+        columns = shape[1] if len(shape) == 2 else 0
+        return f"{dtype} array of shape {shape}", list(_XYZ_NORMALS if columns == 6 else _XYZ)
+    with _translating(path, "NumPy .npz", fix), zipfile.ZipFile(path) as zf:
+        keys = [name[:-4] if name.endswith(".npy") else name for name in zf.namelist()]
+        if "points" in keys:
+            return f"arrays {', '.join(keys)}", list(_XYZ_NORMALS if "normals" in keys else _XYZ)
+        if len(keys) != 1:
+            raise InputError(f"{path}: .npz holds arrays {keys} but no 'points' — save with "
+                             "numpy.savez(file, points=..., normals=...)")
+        with zf.open(zf.namelist()[0]) as fh:
+            shape, _, _ = _npy_header(fh, path, f"NumPy .npz ('{keys[0]}')", fix)
+    return f"array {keys[0]}", list(_XYZ_NORMALS if len(shape) == 2 and shape[1] == 6 else _XYZ)
+
+
+def _pcd_fields(path: pathlib.Path) -> tuple[str, list[str]]:
+    lines, _ = _pcd_header(path, "re-export the file")
+    words = {line.split()[0].upper(): line.split()[1:] for line in lines if line.split()}
+    return f"DATA {' '.join(words.get('DATA', ['?']))}", words.get("FIELDS", [])
+
+
+def _las_fields(path: pathlib.Path) -> tuple[str, list[str]]:
+    suffix = path.suffix.lower()
+    laspy = _import_extra("laspy", suffix, "las")
+    what = suffix[1:].upper()
+    _las_layout(path, what)  # the header and its records are checked before laspy reads them
+    with _translating(path, what, "re-export the file"), _library_logs("laspy"):
+        with open(path, "rb") as fh:
+            header = laspy.LasHeader.read_from(fh)
+        fields = list(header.point_format.dimension_names)
+        return f"version {header.version}, point format {header.point_format.id}", fields
+
+
+def _e57_fields(path: pathlib.Path) -> tuple[str, list[str]]:
+    pye57 = _import_extra("pye57", ".e57", "e57")
+    fields: dict[str, None] = {}
+    with _translating(path, "E57", "re-export the file"), pye57.E57(str(path)) as e57:
+        for i in range(e57.scan_count):
+            fields.update(dict.fromkeys(e57.get_header(i).point_fields))
+        count = e57.scan_count
+    return f"{count} scan{'s' * (count != 1)}", list(fields)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1342,7 +1543,7 @@ def write_spine_csv(path: PathLike, t, points, radius, branch=None) -> None:
     atomic_write(path, write)
 
 
-def write_spine_dxf(path: PathLike, branches) -> None:
+def write_spine_dxf(path: PathLike, branches, *, units: str | None = None) -> None:
     """Write the spines as a CAD drawing: one exact SPLINE per branch plus its radius samples.
 
     Parameters
@@ -1361,6 +1562,11 @@ def write_spine_dxf(path: PathLike, branches) -> None:
         Points on the spine where the radius was sampled.
     sample_radius : (M,) array_like
         Radius at each sample point.
+    units : {None, 'm', 'mm', 'ft', 'in'}, optional
+        The length unit of the coordinates, declared in the drawing's header (``$INSUNITS``, see
+        :data:`DXF_UNITS`; ``$MEASUREMENT`` metric or imperial to match) so that a CAD program
+        inserts it at the right scale.  ``None`` (default) declares the drawing unitless
+        (``$INSUNITS`` 0): the numbers are the scan's, whatever its unit.
 
     Notes
     -----
@@ -1382,8 +1588,10 @@ def write_spine_dxf(path: PathLike, branches) -> None:
         line = doc.modelspace().query("POLYLINE[layer=='RADIUS']")[0]
         radii = [v.get_xdata("CANALSURF")[0].value for v in line.vertices]
     """
+    if units is not None and units not in DXF_UNITS:
+        raise InputError(f"units must be one of {', '.join(map(repr, DXF_UNITS))} or None, got {units!r}")
     ezdxf = _import_extra("ezdxf", ".dxf", "dxf", verb="writing")
-    doc = ezdxf.new("R2010", setup=False)
+    doc = ezdxf.new("R2010", setup=False, units=DXF_UNITLESS if units is None else DXF_UNITS[units])
     doc.appids.add(DXF_APPID)
     doc.layers.add("SPINE")
     doc.layers.add("RADIUS")

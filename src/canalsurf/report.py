@@ -19,6 +19,11 @@ plotly.js is embedded in the page and the figures are PNG ``data:`` URIs -- with
 A branch has one colour throughout: its points and spine in the 3-D view, its curve in the radius
 plot, its row in the table and the stage pictures.
 
+plotly.js takes about 4.6 MB of each page.  Several reports side by side (one per scan of a batch)
+can share one copy instead: :func:`write_plotly_js` writes it once, as ``plotly.min.js``, and each
+page refers to it by a relative address (``plotly_js="../plotly.min.js"``); they still work offline,
+as long as the folder is kept together.
+
 plotly and matplotlib are imported only when a report is made; without them an
 :class:`~canalsurf.errors.InputError` names the extra to install.
 
@@ -51,8 +56,11 @@ from .refine import footpoints
 from .spine import curve_length
 from .surface import surface_mesh
 
-__all__ = ["render_report", "write_report", "require_report_extra", "MAX_VIEW_POINTS", "MAX_FIGURE_POINTS"]
+__all__ = ["render_report", "write_report", "write_plotly_js", "require_report_extra", "PLOTLY_JS_NAME",
+           "MAX_VIEW_POINTS", "MAX_FIGURE_POINTS"]
 
+#: File name of the plotly.js that reports share (:func:`write_plotly_js`), plotly's own name for it.
+PLOTLY_JS_NAME = "plotly.min.js"
 #: Most input points drawn in the 3-D view and the radius plot (a seeded random subset beyond this):
 #: enough to show the noise everywhere on large scans, small enough for a browser to rotate smoothly.
 MAX_VIEW_POINTS = 20_000
@@ -141,7 +149,12 @@ LABELS = {
     "one_sided": "seen from one side only",
     "spine_segments": "spine knot intervals",
     "radius_segments": "radius knot intervals",
+    "quality": "quality (good, check or poor)",
+    "quality_reasons": "why the quality is not good",
+    "scan_noise": "scan noise (from neighbour planes and coordinate steps)",
 }
+#: Prefix of the readable name of a stage's time, ``seconds.<stage>`` in the diagnostics.
+TIME_LABEL = "time: "
 #: How values of some keys read: shares as percentages, angles in degrees.
 _SHARES = frozenset({"no_tube_share", "stray_share"})
 _DEGREES = frozenset({"angular_coverage"})
@@ -163,7 +176,7 @@ def require_report_extra() -> None:
         _import(module)
 
 
-def write_report(path, model, points, *, source: str | None = None) -> None:
+def write_report(path, model, points, *, source: str | None = None, plotly_js: str | None = None) -> None:
     """Write the HTML report of ``model`` reconstructed from ``points`` to ``path`` (atomically).
 
     Parameters
@@ -178,21 +191,39 @@ def write_report(path, model, points, *, source: str | None = None) -> None:
         The input points, in the model's units.
     source : str, optional
         Name of the input shown in the title (e.g. its file name).
+    plotly_js : str, optional
+        Address of a shared plotly.js, relative to the page (``"../plotly.min.js"``, written by
+        :func:`write_plotly_js`), instead of a copy of it in the page.  Default: the page holds its
+        own copy and stands alone.
 
     Raises
     ------
     InputError
         plotly or matplotlib is missing, the points are invalid, or the folder cannot be written.
     """
-    text = render_report(model, points, source=source)
+    text = render_report(model, points, source=source, plotly_js=plotly_js)
     atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
-def render_report(model, points, *, source: str | None = None) -> str:
+def write_plotly_js(path) -> None:
+    """Write the plotly.js of the installed plotly (minified, about 4.6 MB) to ``path``, atomically:
+    the script that reports rendered with ``plotly_js`` refer to.
+
+    Raises
+    ------
+    InputError
+        plotly is missing, or the folder cannot be written.
+    """
+    script = _import("plotly.offline").get_plotlyjs()
+    atomic_write(path, lambda tmp: tmp.write_text(script, encoding="utf-8"))
+
+
+def render_report(model, points, *, source: str | None = None, plotly_js: str | None = None) -> str:
     """The HTML report of ``model`` reconstructed from ``points``, as one string (see the module doc).
 
     Parameters are as for :func:`write_report`.  The page needs no network: every script and picture is
-    inside it.  The same model and points give the same page (the point subsets are seeded).
+    inside it (or, with ``plotly_js``, plotly.js beside it).  The same model and points give the same
+    page (the point subsets are seeded).
     """
     require_report_extra()
     go = importlib.import_module("plotly.graph_objects")
@@ -221,7 +252,8 @@ def render_report(model, points, *, source: str | None = None) -> str:
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         f"<title>canalsurf report — {_e(name)}</title>",
         f"<style>{_CSS}</style>",
-        f'<script type="text/javascript">{plotly_offline.get_plotlyjs()}</script>',
+        (f'<script type="text/javascript">{plotly_offline.get_plotlyjs()}</script>' if plotly_js is None
+         else f'<script type="text/javascript" src="{_e(plotly_js)}" charset="utf-8"></script>'),
         "</head><body>",
         f"<h1>canalsurf report — {_e(name)}</h1>",
         f'<p class="summary">{_e(_describe(network, branches, len(points)))}</p>',
@@ -452,11 +484,11 @@ def _view_caption(network, view, points, label, distance, mesh) -> str:
 
 def _label(key: str) -> str:
     """A readable name for a parameter or diagnostic key: :data:`LABELS`, ``seconds.x`` as
-    ``x (s)``, else the snake_case spelled out (``n_x`` as ``number of x``)."""
+    ``time: x (s)``, else the snake_case spelled out (``n_x`` as ``number of x``)."""
     if key in LABELS:
         return LABELS[key]
     if key.startswith("seconds."):
-        return f"{key[len('seconds.'):].replace('_', ' ')} (s)"
+        return f"{TIME_LABEL}{key[len('seconds.'):].replace('_', ' ')} (s)"
     words = key.replace(".", ": ").split("_")
     if words[0] == "n" and len(words) > 1:
         words = ["number of", *words[1:]]
