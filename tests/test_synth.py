@@ -284,7 +284,8 @@ def test_seeded_clouds_are_as_before():
 
 #: name -> (branches, junctions, connected networks) of every network.
 NETWORK_SHAPES = {"y-vessel": (3, 1, 1), "t-junction": (3, 1, 1), "tree": (7, 3, 1), "rack": (4, 0, 4),
-                  "crossing": (2, 0, 2), "floor-clutter": (1, 0, 1), "scene": (8, 1, 6), "plant": (23, 2, 19)}
+                  "crossing": (2, 0, 2), "floor-clutter": (1, 0, 1), "scene": (8, 1, 6), "plant": (23, 2, 19),
+                  "piping": (6, 1, 4)}
 #: Default share of the points on clutter.
 DEFAULT_CLUTTER = {"floor-clutter": 0.3, "scene": 0.2, "plant": 0.2}
 #: Points of each test cloud (small enough for the brute-force checks).
@@ -511,7 +512,7 @@ def test_network_same_seed_same_cloud(name):
 
 @pytest.mark.parametrize("kwargs, match", [
     ({"name": "knot"}, r"^network name must be one of 'y-vessel', 't-junction', 'tree', 'rack', 'crossing', "
-                       r"'floor-clutter', 'scene', 'plant', got 'knot'$"),
+                       r"'floor-clutter', 'scene', 'plant', 'piping', got 'knot'$"),
     ({"n": 0}, r"^n must be a positive number of points, got 0$"),
     ({"n": 10.5}, r"^n must be a whole number of points, got 10\.5$"),
     ({"n": 99999999999999999999}, r"^n = 99999999999999999999 points would not fit in memory; at most "
@@ -765,7 +766,7 @@ def test_scan_refuses_a_grid_larger_than_max_points():
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"truth": "knot"}, r"^surface or network name must be one of 'fig9-pipe', .*, 'plant', got 'knot'$"),
+    ({"truth": "knot"}, r"^surface or network name must be one of 'fig9-pipe', .*, 'plant', 'piping', got 'knot'$"),
     ({"truth": 3}, r"^scan needs a name of SURFACES or NETWORKS, a SyntheticTube or a SyntheticNetwork, got int$"),
     ({"size": 2}, r"^option 'size' is an option of a network's builder; 'fig9-pipe' takes none$"),
     ({"truth": "t-junction", "size": 2}, r"^the 't-junction' network has no option 'size'; it takes none$"),
@@ -869,3 +870,28 @@ def test_cli_writes_a_scan(tmp_path, capsys):
     assert "--step is an option of a simulated scan: add --scanner" in capsys.readouterr().err
     assert cli.main(["synth", "fig9-pipe", "-o", str(tmp_path / "x.xyz"), "--scanner", "--arc", "180"]) == 2
     assert "--arc does not apply to a simulated scan (--scanner)" in capsys.readouterr().err
+
+
+def test_segments_trunks_and_poles_are_seeded_and_lie_on_their_truth():
+    from canalsurf.refine import footpoints
+    from canalsurf.synth import CASE_FAMILIES, make_pole_scan, make_segment, make_trunk, random_case
+
+    seg = make_segment(length=4.0, cut=(45.0, 0.0), flare=(0.3, 0.0), noise=0.0, rng=5)
+    assert np.array_equal(seg.points, make_segment(length=4.0, cut=(45.0, 0.0), flare=(0.3, 0.0), noise=0.0,
+                                                   rng=5).points)
+    t, d = footpoints(seg.points, seg.spine, seg.radius, closed=False)
+    assert np.abs(d).max() < 1e-6
+    # The points stop at the cuts: within the middle length + 2 radii of spine (a 45-degree cut reaches
+    # one radius past its centre), and none near the overrun ends of the truth.
+    length = np.linalg.norm(np.diff(seg.spine(np.linspace(0, 1, 2001)), axis=0), axis=1).sum()
+    assert np.ptp(t) * length <= 4.0 + 2.0 + 1e-6 and t.min() > 0 and t.max() < 1
+    trunk = make_trunk(n=3000, ground=0.5, rng=2)
+    assert trunk.outlier.sum() > 1000 and np.abs(trunk.points[trunk.outlier, 2]).max() < 0.01
+    assert trunk.radius(0.0) > 1.3 * trunk.radius(1.0)
+    pole = make_pole_scan(points=1500, rng=3)
+    assert np.allclose(pole.points / 0.01, np.round(pole.points / 0.01), atol=1e-6)
+    assert 750 < (~pole.outlier).sum() < 3000
+    for family in CASE_FAMILIES:
+        assert np.array_equal(random_case(family, 7).points, random_case(family, 7).points)
+    with pytest.raises(InputError, match="make_segment needs"):
+        make_segment(cut=(70.0, 0.0))

@@ -43,6 +43,10 @@ Noise there is relative to the local radius.  Layouts (branch indices in order):
 ``scene``          0 - 2 a T (junction 0), 3 - 5 a rack, 6, 7 a crossing pair; a box and a floor.
 ``plant``          per bay (``size`` of them): 15 rack pipes, 2 elbow runs, 2 T's (3 branches each); a box;
                    one floor.
+``piping``         in millimetres: 0 an NPS 4 run (straight, long-radius 90-degree elbow, straight, 3R
+                   45-degree elbow, straight); 1 an NPS 2 run with a long-radius elbow; 2, 3 the NPS 4 run
+                   of a reducing tee (junction 0), 4 its NPS 2 outlet; 5 NPS 4, a 4 x 2 reducer, NPS 2.
+                   :func:`piping_truth` gives its pieces.
 
 Simulated scans (:func:`scan`) show any surface or network as a terrestrial laser scanner sees it: from
 one to a few positions, rays on an angular grid (so the spacing grows with range), the first hit of each
@@ -65,7 +69,8 @@ from .spine import constant_spline
 from .errors import InputError
 
 __all__ = ["SyntheticTube", "SURFACES", "CONDITIONS", "make_tube", "sample_tube", "view_direction", "constant_spline",
-           "SyntheticBranch", "SyntheticNetwork", "NETWORKS", "make_network", "MAX_SYNTH_POINTS", "scan", "ScanInfo"]
+           "SyntheticBranch", "SyntheticNetwork", "NETWORKS", "make_network", "MAX_SYNTH_POINTS", "scan",
+           "ScanInfo", "SyntheticPiece", "piping_truth"]
 
 _TABLE1 = [[-3.000, 6.660, 0.000], [-0.337, 5.660, -4.660], [0.410, 0.430, -8.052],
            [-2.037, -7.906, -3.354], [1.813, -6.807, -0.175], [6.760, -3.150, 0.000]]
@@ -876,6 +881,168 @@ def _plant(size: int = 1) -> _Layout:
     return _on_floor(_merged(placed), 0.2, z=0.0)
 
 
+# --- piping: a plant's runs in millimetres, with the pieces a piping designer would draw ----------------
+
+#: Outside diameters (mm) of the piping network's two sizes, from ASME B36.10M (NPS 4 = DN 100 and
+#: NPS 2 = DN 50; EN 10220 series 1 has the same two).
+_NPS4_OD, _NPS2_OD = 114.3, 60.3
+#: Bend radii of butt-welding elbows (ASME B16.9): long radius = 1.5 x the nominal size, 3R = 3 x it
+#: (NPS 4: 152.4 and 304.8 mm; NPS 2: 76.2 mm).
+_LR_NPS4, _3R_NPS4, _LR_NPS2 = 1.5 * 4 * 25.4, 3 * 4 * 25.4, 1.5 * 2 * 25.4
+#: Length of a concentric reducer NPS 4 x 2 (ASME B16.9, dimension H), from where its cone meets one
+#: size to where it meets the other; its knuckles round the corners over this many millimetres either side.
+_REDUCER_4X2, _REDUCER_KNUCKLE = 102.0, 5.0
+#: Centreline samples per millimetre of the piping runs: 2 mm apart, a 38th of the smallest bend radius.
+_PIPING_SAMPLES_PER_MM = 0.5
+#: Nominal sizes of the piping network's outside diameters: ASME NPS and the EN DN of the same OD.
+_PIPING_SIZES = {_NPS4_OD: ("NPS 4", "DN 100"), _NPS2_OD: ("NPS 2", "DN 50")}
+
+
+@dataclass(frozen=True, eq=False)
+class SyntheticPiece:
+    """One piece of the ``piping`` network's truth, as :func:`canalsurf.piping.decompose` describes a piece.
+
+    Attributes
+    ----------
+    type : {"straight", "elbow", "tee", "reducer"}
+    branch : int
+        Index into the network's ``branches`` (a tee: the branch of its run that ends at it).
+    start, end : ndarray, shape (3,)
+        Centreline ends, in millimetres (a tee: both are the junction point).
+    length : float
+        Along the centreline (a tee: 0).
+    outside_diameter, end_diameter : float
+        At the start and the end (they differ on a reducer only).
+    bend_radius, angle : float or None
+        An elbow's centreline bend radius and its angle in degrees.
+    centre : ndarray or None
+        An elbow's centre of bend; a tee's junction point.
+    nps, dn : str
+        Nominal size (at the start) by ASME B36.10M and by EN 10220.
+    """
+
+    type: str
+    branch: int
+    start: np.ndarray
+    end: np.ndarray
+    length: float
+    outside_diameter: float
+    end_diameter: float
+    bend_radius: float | None = None
+    angle: float | None = None
+    centre: np.ndarray | None = None
+    nps: str = ""
+    dn: str = ""
+
+
+def _pipe_run(start, heading, pieces, branch: int, diameter: float):
+    """Dense centreline samples of straights and circular bends, and each piece's truth.
+
+    ``pieces`` are ``("straight", length)`` or ``("elbow", bend radius, angle in degrees, towards)``: the
+    heading turns towards the part of ``towards`` normal to it.
+    """
+    p = np.asarray(start, float)
+    d = np.asarray(heading, float) / np.linalg.norm(heading)
+    xyz, truth = [p[None]], []
+    nps, dn = _PIPING_SIZES[diameter]
+    for kind, *spec in pieces:
+        if kind == "straight":
+            (length,) = spec
+            u = np.linspace(0.0, length, int(np.ceil(length * _PIPING_SAMPLES_PER_MM)) + 1)[1:, None]
+            q, centre, bend, angle = p + length * d, None, None, None
+            xyz.append(p + u * d)
+            new_d = d
+        else:
+            bend, angle, towards = spec
+            towards = np.asarray(towards, float)
+            n = towards - (towards @ d) * d
+            n /= np.linalg.norm(n)
+            centre = p + bend * n
+            length = bend * np.radians(angle)
+            a = np.linspace(0.0, np.radians(angle), int(np.ceil(length * _PIPING_SAMPLES_PER_MM)) + 1)[1:, None]
+            xyz.append(centre + bend * (-np.cos(a) * n + np.sin(a) * d))
+            q = xyz[-1][-1]
+            new_d = np.cos(np.radians(angle)) * d + np.sin(np.radians(angle)) * n
+        truth.append(SyntheticPiece(kind, branch, p, q, float(length), diameter, diameter, bend, angle, centre,
+                                    nps, dn))
+        p, d = q, new_d
+    return _by_arclength(np.vstack(xyz)), truth
+
+
+def _piping_parts():
+    """The piping network's branches, junctions and true pieces (one builder for both)."""
+    x, y, z = np.eye(3)
+    r4, r2 = _NPS4_OD / 2, _NPS2_OD / 2
+    branches, pieces = [], []
+    # Branch 0, NPS 4: 1 m along x, a long-radius elbow to y, 0.6 m, a 3R 45-degree elbow rising, 0.5 m.
+    spine, truth = _pipe_run([0.0, 0.0, 0.0], x, [("straight", 1000.0), ("elbow", _LR_NPS4, 90.0, y),
+                                                  ("straight", 600.0), ("elbow", _3R_NPS4, 45.0, z),
+                                                  ("straight", 500.0)], 0, _NPS4_OD)
+    branches.append(SyntheticBranch(spine, constant_spline(r4)))
+    pieces += truth
+    # Branch 1, NPS 2: 0.8 m along y, a long-radius elbow to x, 0.6 m.
+    spine, truth = _pipe_run([1700.0, 0.0, 0.0], y, [("straight", 800.0), ("elbow", _LR_NPS2, 90.0, x),
+                                                     ("straight", 600.0)], 1, _NPS2_OD)
+    branches.append(SyntheticBranch(spine, constant_spline(r2)))
+    pieces += truth
+    # Branches 2 - 4: a reducing tee, NPS 4 run of 1.2 m along y split at its middle, NPS 2 outlet along x
+    # reaching 0.5 m from the run's axis.
+    junction = np.array([2800.0, 600.0, 0.0])
+    for b, (start, heading, length, diameter) in enumerate(((junction - 600.0 * y, y, 600.0, _NPS4_OD),
+                                                             (junction, y, 600.0, _NPS4_OD),
+                                                             (junction, x, 500.0, _NPS2_OD)), start=2):
+        spine, truth = _pipe_run(start, heading, [("straight", length)], b, diameter)
+        branches.append(SyntheticBranch(spine, constant_spline(diameter / 2), (None, 0) if b == 2 else (0, None)))
+        pieces += truth
+    nps, dn = _PIPING_SIZES[_NPS4_OD]
+    pieces.append(SyntheticPiece("tee", 2, junction, junction, 0.0, _NPS4_OD, _NPS4_OD, centre=junction,
+                                 nps=nps, dn=dn))
+    # Branch 5: NPS 4 for 0.5 m, a concentric reducer to NPS 2, NPS 2 for 0.5 m, along y: one canal whose
+    # radius is constant, linear over the reducer, constant.
+    lengths = (500.0, _REDUCER_4X2, 500.0)
+    spine, _ = _pipe_run([3800.0, 0.0, 0.0], y, [("straight", sum(lengths))], 5, _NPS4_OD)
+    # The radius: the cone's line between the two sizes, its corners rounded over _REDUCER_KNUCKLE either
+    # side (a quadratic B-spline whose coefficients are the broken line at its Greville points), so that
+    # the surface's normal turns smoothly there as a pressed reducer's knuckles do.
+    a, b = lengths[0] / sum(lengths), (lengths[0] + lengths[1]) / sum(lengths)
+    k = _REDUCER_KNUCKLE / sum(lengths)
+    knots = np.array([0.0, 0.0, 0.0, a - k, a + k, b - k, b + k, 1.0, 1.0, 1.0])
+    branches.append(SyntheticBranch(spine, BSpline(knots, np.array([r4, r4, r4, (r4 + r2) / 2, r2, r2, r2]), 2)))
+    s, start = 0.0, np.array([3800.0, 0.0, 0.0])
+    for kind, length, d0, d1 in (("straight", lengths[0], _NPS4_OD, _NPS4_OD),
+                                 ("reducer", lengths[1], _NPS4_OD, _NPS2_OD),
+                                 ("straight", lengths[2], _NPS2_OD, _NPS2_OD)):
+        nps, dn = _PIPING_SIZES[d0]
+        pieces.append(SyntheticPiece(kind, 5, start + s * y, start + (s + length) * y, length, d0, d1,
+                                     nps=nps, dn=dn))
+        s += length
+    return _Layout(tuple(branches), junction[None]), tuple(pieces)
+
+
+def _piping() -> _Layout:
+    return _piping_parts()[0]
+
+
+def piping_truth() -> tuple:
+    """The true pieces of the ``piping`` network (see :data:`NETWORKS`), in millimetres.
+
+    Returns
+    -------
+    tuple of SyntheticPiece
+        Along each branch in order: branch 0 straight, elbow (long radius, 90 degrees), straight, elbow
+        (3R, 45 degrees), straight; branch 1 straight, elbow, straight; branches 2 - 4 one straight each
+        and the tee at junction 0; branch 5 straight, reducer, straight.
+
+    Examples
+    --------
+    >>> [p.type for p in piping_truth()][:5]
+    ['straight', 'elbow', 'straight', 'elbow', 'straight']
+    >>> round(piping_truth()[1].bend_radius, 1), piping_truth()[1].nps
+    (152.4, 'NPS 4')
+    """
+    return _piping_parts()[1]
+
+
 #: name -> (builder, description).  ``builder(**options)`` returns the network's geometry (branches,
 #: junctions, clutter and its default share of points); only ``plant`` takes an option (``size``).
 NETWORKS = {
@@ -898,6 +1065,10 @@ NETWORKS = {
     "plant": (_plant, "a plant for benchmarks: per bay (option size, default 1) 3 racks of 4-6 pipes "
                       "(radii 0.5-2), 2 runs with a 90-degree elbow, 2 tees and a box, on a floor (20 % "
                       "of the points): 23 tubes per bay"),
+    "piping": (_piping, "plant piping in millimetres (NPS 4 = 114.3 and NPS 2 = 60.3 mm OD): a run with a "
+                        "long-radius 90-degree and a 3R 45-degree elbow, an NPS 2 run with an elbow, a "
+                        "reducing tee and a 4 x 2 reducer; true pieces by piping_truth(): 6 branches, "
+                        "1 junction"),
 }
 
 
@@ -1144,7 +1315,7 @@ def make_network(name: str = "t-junction", *, n: int = 30_000, noise: float = 0.
     ----------
     name : str
         One of ``NETWORKS``: ``y-vessel``, ``t-junction``, ``tree``, ``rack``, ``crossing``,
-        ``floor-clutter``, ``scene``, ``plant``.
+        ``floor-clutter``, ``scene``, ``plant``, ``piping``.
     n : int
         Number of points, clutter included (at most ``MAX_SYNTH_POINTS``).
     noise : float
@@ -1809,3 +1980,190 @@ def scan(truth, *, positions=None, step: float | None = None, noise: float | Non
     branch = scene.branches[0]
     return SyntheticTube(scene.name, points, normals, branch.spine, branch.radius, scene.closed, float(noise),
                          "scan", label < 0, float("nan"), info)
+
+
+# --------------------------------------------------------------------------------------------------
+# cases real scans hold that a whole named surface does not: short obliquely cut segments, flared
+# trunks, thin poles scanned from one side
+
+#: A segment's spine runs on this many radii past each cut, so the cut surface ends inside the truth.
+SEGMENT_OVERRUN = 1.5
+
+
+def _straightish_spine(rng, length: float, bend: float, direction=None) -> BSpline:
+    """A spine of ``length`` along a random (or the given) direction, bowed sideways by ``bend``."""
+    d = rng.normal(size=3) if direction is None else np.asarray(direction, float)
+    d /= np.linalg.norm(d)
+    side = np.cross(d, rng.normal(size=3))
+    side /= np.linalg.norm(side)
+    s = np.linspace(0.0, 1.0, 7)
+    vertices = (s * length)[:, None] * d + (4 * bend * s * (1 - s))[:, None] * side
+    return _by_arclength(make_interp_spline(s, vertices, k=3)(np.linspace(0.0, 1.0, 300)))
+
+
+def _flared(t: np.ndarray, radius: float, flare: tuple, width: float) -> np.ndarray:
+    """Radius ``radius`` growing by ``flare[0]``, ``flare[1]`` (shares) over ``width`` of t at each end."""
+    return radius * (1 + flare[0] * np.clip((width - t) / width, 0, 1) ** 2
+                     + flare[1] * np.clip((t - 1 + width) / width, 0, 1) ** 2)
+
+
+def make_segment(*, length: float = 4.0, cut: tuple = (30.0, 30.0), flare: tuple = (0.2, 0.2),
+                 n: int = 3000, noise: float = 0.02, rng=None) -> SyntheticTube:
+    """A short tube of radius 1 cut off obliquely at both ends, flaring towards them.
+
+    So a vessel segment looks where it left a bifurcation, or a pipe stub between two fittings: the
+    tube runs ``length`` radii between the centres of its two cut planes, each tilted by ``cut``
+    degrees from square (about a random axis), and its radius grows by the shares ``flare`` over the
+    last radius or two before each end.
+
+    Parameters
+    ----------
+    length : float
+        Between the cut centres, in radii (3 - 6 is short).
+    cut : (float, float)
+        Tilt of each cut plane in degrees, in [0, 60].
+    flare : (float, float)
+        Growth of the radius at each end, as shares of it.
+    n, noise, rng
+        Points sampled on the whole tube before the cuts (by area), uniform noise half-width along
+        the normals, seed.
+
+    Returns
+    -------
+    SyntheticTube
+        Its ``spine`` and ``radius`` run ``SEGMENT_OVERRUN`` radii past each cut (the points stop at
+        the cuts).
+    """
+    rng = _generator(rng)
+    if not (0 < length and all(0 <= c <= 60 for c in cut) and all(f >= 0 for f in flare)):
+        raise InputError(f"make_segment needs length > 0, cuts in [0, 60] degrees and flares >= 0, "
+                         f"got {length!r}, {cut!r}, {flare!r}")
+    total = length + 2 * SEGMENT_OVERRUN
+    spine = _straightish_spine(rng, total, rng.uniform(0.0, 0.2) * length)
+    t = np.linspace(0.0, 1.0, 200)
+    width = rng.uniform(1.0, 2.0) / total
+    radius = make_interp_spline(t, _flared(t, 1.0, flare, width), k=3)
+    points, normals = sample_tube(spine, radius, _point_count(n), noise, rng)
+    keep = np.ones(len(points), bool)
+    for tc, sign, tilt in ((SEGMENT_OVERRUN / total, 1.0, cut[0]), (1 - SEGMENT_OVERRUN / total, -1.0, cut[1])):
+        tangent = spine.derivative()(tc)
+        tangent /= np.linalg.norm(tangent)
+        axis = np.cross(tangent, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        plane = np.cos(np.radians(tilt)) * tangent + np.sin(np.radians(tilt)) * axis
+        keep &= sign * ((points - spine(tc)) @ plane) > 0
+    return SyntheticTube("segment", points[keep], normals[keep], spine, radius, False, noise,
+                         outlier=np.zeros(int(keep.sum()), bool))
+
+
+def make_trunk(*, radius: float = 0.2, height: float = 3.0, flare: float = 0.5, n: int = 20000,
+               noise: float | None = None, ground: float = 0.3, rng=None) -> SyntheticTube:
+    """A tree trunk standing on the ground, its base flaring out: a canal whose radius falls fast.
+
+    The radius is ``radius (1 + flare exp(-z / w)) (1 - 0.05 z / height)`` at height ``z`` (``w`` 0.2
+    - 0.5 of the height's units, drawn), the trunk leans a little, and ``ground`` (a share of ``n``)
+    points lie on the ground around it (marked in ``outlier``).
+
+    Parameters
+    ----------
+    radius, height : float
+        Radius above the flare and height of the trunk (metres, say).
+    flare : float
+        How much wider the base is, as a share of ``radius``.
+    n : int
+        Points on the trunk; ``ground * n`` more on the ground.
+    noise : float, optional
+        Standard deviation of Gaussian noise along the normals; default 1 % of ``radius``.
+    ground : float
+        Ground points per trunk point.
+    rng
+        Seed or generator.
+    """
+    rng = _generator(rng)
+    if not (radius > 0 and height > 0 and flare >= 0 and ground >= 0):
+        raise InputError(f"make_trunk needs radius, height > 0 and flare, ground >= 0, got "
+                         f"{radius!r}, {height!r}, {flare!r}, {ground!r}")
+    noise = 0.01 * radius if noise is None else float(noise)
+    lean = np.r_[rng.normal(size=2) * 0.05, 1.0]
+    spine = _by_arclength(np.linspace(0.0, height, 200)[:, None] * lean / lean[2])
+    t = np.linspace(0.0, 1.0, 200)
+    w = rng.uniform(0.2, 0.5) / height
+    r = radius * (1 + flare * np.exp(-t / w)) * (1 - 0.05 * t)
+    radius_f = make_interp_spline(t, r, k=3)
+    points, normals = sample_tube(spine, radius_f, _point_count(n), noise, rng, noise_model="gaussian")
+    m = int(ground * n)
+    reach = 2.0 * height
+    g = np.column_stack([rng.uniform(-reach, reach, (m, 2)), rng.normal(0.0, noise, m)])
+    g = g[np.linalg.norm(g[:, :2], axis=1) > r[0] + 3 * noise]
+    up = np.tile([0.0, 0.0, 1.0], (len(g), 1))
+    return SyntheticTube("trunk", np.vstack([points, g]), np.vstack([normals, up]), spine, radius_f, False,
+                         noise, "gaussian", np.r_[np.zeros(len(points), bool), np.ones(len(g), bool)])
+
+
+def make_pole_scan(*, radius: float = 0.08, length: float = 2.0, vertical: bool = True, points: int = 2000,
+                   distance: float = 6.0, quantum: float | None = 0.01, noise: float = 0.003,
+                   rng=None) -> SyntheticTube:
+    """A thin pole or pipe (metres) scanned once from one side, as mobile mapping sees street furniture.
+
+    One scanner 1.6 m above the ground at ``distance`` from the tube's middle, its angular step chosen
+    so that about ``points`` rays hit the tube; a ground plane; coordinates quantised to ``quantum``
+    as a LAS file stores them (see :func:`scan`).  A vertical tube stands 0.3 m above the ground; a
+    horizontal one lies 0.3 m above it.  The spine bows sideways by up to 30 % of the length.
+    """
+    rng = _generator(rng)
+    if not (radius > 0 and length > 0 and points > 0 and distance > 0):
+        raise InputError(f"make_pole_scan needs positive radius, length, points and distance, got "
+                         f"{radius!r}, {length!r}, {points!r}, {distance!r}")
+    axis = [0.0, 0.0, 1.0] if vertical else [1.0, 0.0, 0.0]
+    spine = _straightish_spine(rng, length, rng.uniform(0.0, 0.3) * length, axis)
+    low = spine(np.linspace(0, 1, 64))[:, 2].min()
+    spine = BSpline(spine.t, spine.c + [0.0, 0.0, 0.3 - low + (0 if vertical else radius)], spine.k)
+    truth = SyntheticTube("pole", np.zeros((1, 3)), np.zeros((1, 3)), spine, constant_spline(radius), False, 0.0)
+    heading = rng.uniform(0, 2 * np.pi)
+    position = spine(0.5) + distance * np.array([np.cos(heading), np.sin(heading), 0.0])
+    position[2] = 1.6
+    spacing = np.sqrt(length * 2 * radius / points)
+    return scan(truth, positions=position[None], step=np.degrees(spacing / distance), noise=noise,
+                range_noise=0.0, quantum=quantum, rng=rng)
+
+
+#: Families of :func:`random_case`.
+CASE_FAMILIES = ("tube", "segment", "trunk", "pole", "network")
+#: Networks :func:`random_case` draws from (the plant is too large for a quick case).
+_CASE_NETWORKS = ("y-vessel", "t-junction", "tree", "rack", "crossing", "floor-clutter", "scene")
+
+
+def random_case(family: str, seed: int):
+    """A random scan of one of ``CASE_FAMILIES``, with its truth: what the trust checks run on.
+
+    * ``tube``: a named surface, 800 - 5000 points, up to its default noise, seen all round or over
+      270 or 180 degrees;
+    * ``segment``: :func:`make_segment`, 3 - 6 radii long, cuts up to 45 degrees, flares up to 35 %;
+    * ``trunk``: :func:`make_trunk`, radius 0.1 - 0.3, flare 20 - 70 %;
+    * ``pole``: :func:`make_pole_scan`, radius 4 - 15 cm, 1,000 - 3,000 points on it, one scanner,
+      1 cm quantisation;
+    * ``network``: a named network (not the plant), 15,000 - 40,000 points, noise 0.5 - 3 %.
+
+    Returns
+    -------
+    SyntheticTube or SyntheticNetwork
+    """
+    choice(family, "case family", CASE_FAMILIES)
+    rng = _generator(seed)
+    if family == "tube":
+        name = str(rng.choice(sorted(SURFACES)))
+        return make_tube(name, n=int(rng.integers(800, 5001)), noise=SURFACES[name][3] * rng.uniform(0.0, 1.0),
+                         arc=float(rng.choice([360.0, 360.0, 270.0, 180.0])), rng=rng)
+    if family == "segment":
+        return make_segment(length=rng.uniform(3.0, 6.0), cut=tuple(rng.uniform(0.0, 45.0, 2)),
+                            flare=tuple(rng.uniform(0.0, 0.35, 2)), n=int(rng.integers(1500, 6001)),
+                            noise=rng.uniform(0.0, 0.05), rng=rng)
+    if family == "trunk":
+        return make_trunk(radius=rng.uniform(0.1, 0.3), height=rng.uniform(2.0, 4.0), flare=rng.uniform(0.2, 0.7),
+                          n=int(rng.integers(5000, 20001)), rng=rng)
+    if family == "pole":
+        return make_pole_scan(radius=rng.uniform(0.04, 0.15), length=rng.uniform(1.0, 3.0),
+                              vertical=bool(rng.integers(2)), points=int(rng.integers(1000, 3001)),
+                              distance=rng.uniform(3.0, 10.0), rng=rng)
+    return make_network(str(rng.choice(_CASE_NETWORKS)), n=int(rng.integers(15000, 40001)),
+                        noise=rng.uniform(0.005, 0.03), rng=rng)
