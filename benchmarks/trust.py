@@ -1,0 +1,106 @@
+"""Trust: every model written is within what its own quality claims, or the scan is refused.
+
+Random scans of every family of ``canalsurf.synth.CASE_FAMILIES`` (named surfaces seen all round or
+from one side, short obliquely cut and flared segments, flared trunks on the ground, thin poles
+scanned once from one side with 1 cm quantisation, networks with clutter) are reconstructed with no
+parameters.  Each written branch is compared with the truth (``canalsurf.metrics.model_error``) and
+held to the claim of its quality level (``canalsurf.quality.CLAIMS``).  A branch outside its claim is
+a *silently wrong* model: the table must show none.
+
+Run from the repository root::
+
+    python benchmarks/trust.py                       # 100 cases per family
+    python benchmarks/trust.py --markdown docs/trust.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import canalsurf
+from canalsurf.metrics import model_error
+from canalsurf.quality import CLAIMS
+from canalsurf.synth import CASE_FAMILIES, SyntheticNetwork, random_case
+
+COMMAND = "python benchmarks/trust.py --markdown docs/trust.md"
+HEAD = ("| family | scans | refused | branches written | good / check / poor | outside its claim "
+        "| spine mean % r (median, worst good) | radius error % (median, worst good) | s per scan |")
+
+
+def outside_claim(error: dict) -> bool:
+    """Whether one branch's error exceeds what its quality claims."""
+    claim = CLAIMS[error["quality"]]
+    return bool(error["spine_mean"] > claim["spine"] or error["radius_mean"] > claim["radius"])
+
+
+def check(family: str, seed: int) -> tuple[str | None, list, float]:
+    """Reconstruct one random case: (refusal message or None, per-branch errors, seconds)."""
+    case = random_case(family, seed)
+    start = time.perf_counter()
+    try:
+        network = canalsurf.reconstruct(case.points)
+    except canalsurf.ReconstructionError as exc:
+        return str(exc), [], time.perf_counter() - start
+    seconds = time.perf_counter() - start
+    if isinstance(case, SyntheticNetwork):
+        errors = model_error(network, case.branches, case.junctions)
+    else:
+        errors = model_error(network, [case])
+    return None, [e for e in errors if np.isfinite(e["spine_mean"])], seconds
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cases", type=int, default=100, help="random scans per family (default 100)")
+    parser.add_argument("--markdown", type=Path, help="also write the table into this Markdown file")
+    args = parser.parse_args(argv)
+    lines = [HEAD, "|" + "---|" * (HEAD.count("|") - 1)]
+    print("\n".join(lines), flush=True)
+    wrong_total, examples = 0, []
+    for family in CASE_FAMILIES:
+        refused, errors, seconds = 0, [], []
+        for seed in range(args.cases):
+            why, found, s = check(family, seed)
+            refused += why is not None
+            seconds.append(s)
+            for e in found:
+                errors.append(e)
+                if outside_claim(e):
+                    examples.append(f"{family} seed {seed}: branch {e['id']} {e['quality']}, spine "
+                                    f"{100 * e['spine_mean']:.1f} % r, radius {100 * e['radius_mean']:.1f} %")
+                    print("outside its claim:", examples[-1], file=sys.stderr, flush=True)
+        wrong = sum(outside_claim(e) for e in errors)
+        wrong_total += wrong
+        levels = [sum(e["quality"] == q for e in errors) for q in CLAIMS]
+        good = [e for e in errors if e["quality"] == "good"]
+        spine = 100 * np.array([e["spine_mean"] for e in errors]) if errors else np.array([np.nan])
+        radius = 100 * np.array([e["radius_mean"] for e in errors]) if errors else np.array([np.nan])
+        worst_good = (max(100 * e["spine_mean"] for e in good), max(100 * e["radius_mean"] for e in good)) \
+            if good else (np.nan, np.nan)
+        lines.append(f"| {family} | {args.cases} | {refused} | {len(errors)} | {' / '.join(map(str, levels))} | "
+                     f"{wrong} | {np.median(spine):.2f}, {worst_good[0]:.2f} | {np.median(radius):.2f}, "
+                     f"{worst_good[1]:.2f} | {np.mean(seconds):.2f} |")
+        print(lines[-1], flush=True)
+    claims = ", ".join(f"`{q}` spine ≤ {100 * c['spine']:.0f} % r and radius ≤ {100 * c['radius']:.0f} %"
+                       for q, c in CLAIMS.items())
+    if args.markdown:
+        args.markdown.write_text(
+            "# Trust: models within their stated quality\n\nMade by `" + COMMAND + f"`: {args.cases} random "
+            "scans of each family of `canalsurf.synth.random_case` (seeds 0 to "
+            f"{args.cases - 1}), reconstructed with no parameters. Every written branch is compared with "
+            "the truth away from junctions (`canalsurf.metrics.model_error`: the mean distance of its spine "
+            "from the true spine in true radii, and its mean radius error) and held to what its quality "
+            f"claims (`canalsurf.quality.CLAIMS`: {claims}). *Outside its claim* counts silently wrong "
+            "models; *refused* counts scans that ended in a one-line `ReconstructionError`.\n\n"
+            + "\n".join(lines) + "\n" + ("\nOutside their claim:\n\n" + "\n".join(f"- {e}" for e in examples)
+                                         + "\n" if examples else ""))
+    return 1 if wrong_total else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

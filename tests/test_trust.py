@@ -1,0 +1,98 @@
+"""Trust: a model is right within the accuracy its quality claims, or the scan is refused.
+
+The random scans of ``canalsurf.synth.random_case`` (one-sided, short and flared, quantised, networks
+with clutter) are held to ``canalsurf.quality.CLAIMS``; ``benchmarks/trust.py`` runs hundreds of them,
+these tests a sample (hypothesis profile ``fast`` by default; ``--hypothesis-profile=thorough`` runs
+as many as the benchmark).  Then the bars of the shapes real scans showed wrong: short obliquely cut
+segments must not fold, a flared trunk is a canal, thin poles seen once from one side are measured.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+import canalsurf
+from canalsurf.metrics import model_error
+from canalsurf.quality import CLAIMS
+from canalsurf.spine import curve_length
+from canalsurf.synth import CASE_FAMILIES, SyntheticNetwork, make_pole_scan, make_segment, make_trunk, random_case
+
+settings.register_profile("fast", max_examples=10, deadline=None, derandomize=True)
+settings.register_profile("thorough", max_examples=500, deadline=None, derandomize=True)
+
+
+def errors_of(case):
+    """Per-branch errors of the model of ``case``, or None when it was refused with one line."""
+    try:
+        network = canalsurf.reconstruct(case.points)
+    except canalsurf.ReconstructionError as exc:
+        assert str(exc).strip() and "\n" not in str(exc)
+        return None, None
+    if isinstance(case, SyntheticNetwork):
+        return network, model_error(network, case.branches, case.junctions)
+    return network, model_error(network, [case])
+
+
+@settings(settings.get_profile("fast"))
+@given(family=st.sampled_from(CASE_FAMILIES), seed=st.integers(0, 2**31 - 1))
+def test_every_written_branch_is_within_its_claim(family, seed):
+    _, errors = errors_of(random_case(family, seed))
+    for e in errors or ():
+        if np.isfinite(e["spine_mean"]):
+            claim = CLAIMS[e["quality"]]
+            assert e["spine_mean"] <= claim["spine"], (family, seed, e)
+            assert e["radius_mean"] <= claim["radius"], (family, seed, e)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_short_oblique_flared_segments_do_not_fold(seed):
+    rng = np.random.default_rng(seed)
+    length = rng.uniform(3.0, 6.0)
+    case = make_segment(length=length, cut=tuple(rng.uniform(0, 45, 2)), flare=tuple(rng.uniform(0, 0.35, 2)),
+                        n=int(rng.integers(1500, 6000)), rng=rng)
+    network, errors = errors_of(case)
+    assert network is not None, "a short segment must be reconstructed"
+    assert len(network.branches) == 1
+    # A fold runs the spine to the far end and back: twice the length.  The points reach at most
+    # one radius past each cut centre (a 45-degree cut), so the spine is at most length + 2.
+    assert curve_length(network.branches[0].spine) <= length + 2.0 + 0.2
+    (e,) = errors
+    assert e["spine_mean"] <= 0.05, e
+    assert e["radius_mean"] <= 0.03, e
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_flared_trunk_is_a_canal_within_three_percent(seed):
+    case = make_trunk(flare=0.3 + 0.15 * seed, rng=seed)
+    network = canalsurf.reconstruct(case.points)
+    assert len(network.branches) == 1 and network.kind == "canal"
+    b = network.branches[0]
+    t = np.linspace(0.0, 1.0, 400)
+    model_r, pts = b.radius(t), b.spine(t)
+    # The true radius at each model point's height along the trunk.
+    truth_t = np.linspace(0.0, 1.0, 4001)
+    nearest = np.argmin(np.linalg.norm(pts[:, None] - case.spine(truth_t)[None], axis=2), axis=1)
+    assert np.abs(model_r / case.radius(truth_t[nearest]) - 1).max() <= 0.03
+    # And the whole height is covered, the flare included.
+    assert truth_t[nearest].min() <= 0.03 and truth_t[nearest].max() >= 0.97
+
+
+def test_thin_poles_seen_from_one_side_are_measured():
+    # One scanner, 1 cm quantisation, 1-3 k points per tube, radius 4-15 cm: the bar is 9 of 10 within
+    # 10 % of the radius, the rest refused -- none wrong.
+    within = 0
+    for seed in range(10):
+        rng = np.random.default_rng(1000 + seed)
+        case = make_pole_scan(radius=rng.uniform(0.04, 0.15), length=rng.uniform(1.0, 3.0),
+                              vertical=bool(seed % 2), points=int(rng.integers(1000, 3001)),
+                              distance=rng.uniform(3.0, 10.0), rng=rng)
+        network, errors = errors_of(case)
+        if network is None:
+            continue
+        for e in errors:
+            assert e["radius_mean"] <= 0.10, (seed, e)
+        assert network.diagnostics["quality"] != "good"  # seen from one side: never claimed good
+        within += 1
+    assert within >= 9
