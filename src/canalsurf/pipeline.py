@@ -294,10 +294,13 @@ def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0):
             nrm = -nrm
         kappa = principal_curvature(scan.pts, nrm, tree=tree)
         r0 = curvature_radius(scan.pts, nrm, kappa=kappa)
-        if flat_out and np.isfinite(r0):
-            # Flat clutter (a floor, walls) pulls the median towards large radii: take it again
-            # over the points curved enough to lie on a tube.
-            r0 = curvature_radius(scan.pts, nrm, kappa=kappa[kappa * C.MAX_SHRINK_PER_RADIUS * r0 >= 1.0])
+        if flat_out:
+            # Flat clutter (a floor, walls) pulls the median towards large radii: take it again over
+            # the points that curve at all -- no tube is wider than the cloud, whose RMS distance from
+            # its centre is 1 here -- and then over those curved enough to lie on a tube.
+            r0 = curvature_radius(scan.pts, nrm, kappa=kappa[kappa >= 1.0])
+            if np.isfinite(r0):
+                r0 = curvature_radius(scan.pts, nrm, kappa=kappa[kappa * C.MAX_SHRINK_PER_RADIUS * r0 >= 1.0])
         dist, nbr = tree.query(scan.pts, k=min(C.NORMAL_NEIGHBOURS, len(scan.pts)), workers=-1)
         # Mean area per point is pi d_k^2 / k for the k-th neighbour distance d_k.
         area_per_point = np.pi * np.mean(dist[:, -1] ** 2) / C.NORMAL_NEIGHBOURS
