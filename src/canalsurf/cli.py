@@ -50,7 +50,7 @@ import re
 import sys
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NamedTuple
 
@@ -108,6 +108,17 @@ EXPORTS = {"ifc": _Export("model.ifc", "ifc", "ifc", ("ifcopenshell",)),
 DXF_MISSING = "needs the 'dxf' extra (pip install 'canalsurf[dxf]')"
 #: The bounding box of ``--crop``, as it is typed.
 CROP_FORMAT = "xmin,ymin,zmin,xmax,ymax,zmax"
+#: Most points ``reconstruct`` keeps of a file (inside ``--crop``): a larger file is read in chunks
+#: and a seeded uniform random sample of this many is reconstructed (canalsurf.io.read_points_sample),
+#: so memory stays bounded whatever the file's size.  The pipeline itself works on random subsets of
+#: its input: at most 30,000 points for its stages and fit (constants.MAX_FIT_POINTS) and 200,000 for
+#: the residuals (MAX_RESIDUAL_POINTS).  Drawn from a sample 67 and 10 times as large, they are still
+#: uniform random subsets of the scan, so the result is statistically that of the whole file; the
+#: sample takes 48 MB as float64 coordinates (96 MB with normals), and --voxel still has a dense
+#: cloud to thin.
+STREAM_POINTS = 2_000_000
+#: Seed of that sample: the same file always gives the same sample, and so the same model.
+STREAM_SEED = 0
 
 
 class _UsageError(Exception):
@@ -335,7 +346,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "nothing is written for it.\n\n"
                     f"Point formats: {' '.join(POINT_FORMATS)} (.las/.laz, .pcd, .e57 need extras).\n"
                     "Parameters left out are chosen from the data (see -v) and recorded in model.json, "
-                    "so any run can be repeated exactly.",
+                    "so any run can be repeated exactly.\n"
+                    f"A file of more than {STREAM_POINTS:,} points (inside --crop) is read in chunks, in "
+                    f"bounded memory, and a seeded\nrandom sample of {STREAM_POINTS:,} of them is "
+                    "reconstructed; the summary says so.",
         epilog="examples:\n"
                "  canalsurf reconstruct scan.ply -o out/\n"
                "  canalsurf reconstruct a.xyz b.xyz c.laz -o results/ --mesh-format stl\n"
@@ -383,7 +397,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--normals", choices=("auto", "estimate"), default="auto",
                    help="auto (default): use the file's normals if it has them; estimate: always "
                         "estimate them")
-    g = p.add_argument_group("input points (applied in this order, after reading, before reconstructing)")
+    g = p.add_argument_group("input points (--crop while reading, before a large file is sampled; --voxel "
+                             "then, before reconstructing)")
     g.add_argument("--crop", type=_crop_box, metavar=CROP_FORMAT.upper(),
                    help="keep only the points inside this box (faces included), in the input's units; "
                         "'canalsurf info FILE' shows the points' bounding box")
@@ -405,8 +420,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "the parameters (needs the 'report' extra: pip install 'canalsurf[report]')")
     g.add_argument("--labels", action="store_true",
                    help="also write points.ply: the input points (those inside --crop, all of them even "
-                        "with --voxel) with the branch each lies on (-1: on no tube) and its signed distance "
-                        "from the surface, to colour or split the scan")
+                        "with --voxel or when a large file is sampled: they are then read again, in chunks) "
+                        "with the branch each lies on (-1: on no tube) and its signed distance from the "
+                        "surface, to colour or split the scan")
     _add_export_options(p)
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_reconstruct)
@@ -708,17 +724,20 @@ def _dxf_available() -> bool:
 
 
 def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_points=None,
-                  source: str | None = None, label_points=None, units: str | None = None,
-                  exports: dict | None = None, catalogue: str | None = None,
+                  source: str | None = None, label_points=None,
+                  label_chunks: tuple[int, Callable[[], Iterator[np.ndarray]]] | None = None,
+                  units: str | None = None, exports: dict | None = None, catalogue: str | None = None,
                   plotly_js: str | None = None) -> dict[str, Callable]:
     """Everything a reconstruction writes, computed now; name -> ``write(path)`` callables.
 
     With ``report_points`` (the input points) the files include ``report.html`` about ``source``
     (referring to a shared plotly.js at ``plotly_js`` if given); with ``label_points`` (the input
     points) ``points.ply``, each point with its branch id (-1: on no tube) and its signed distance
-    from the surface.  ``units`` is declared in spine.dxf; ``exports`` (option -> module, from
-    :func:`_export_modules`) adds model.ifc, model.step and pipes.csv, in ``units`` or, without,
-    :data:`DEFAULT_EXPORT_UNITS`.
+    from the surface.  ``label_chunks``, ``(count, chunks)`` with ``chunks()`` giving the input points
+    a chunk at a time, writes the same file for points too many to hold: each chunk is labelled and
+    written as it comes, when the file is written (not now).  ``units`` is declared in spine.dxf;
+    ``exports`` (option -> module, from :func:`_export_modules`) adds model.ifc, model.step and
+    pipes.csv, in ``units`` or, without, :data:`DEFAULT_EXPORT_UNITS`.
 
     Raises
     ------
@@ -727,7 +746,8 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
     InputError
         ``report_points`` are given and the 'report' extra is missing.
     """
-    from .io import write_json, write_labelled_points, write_mesh, write_spine_csv, write_spine_dxf
+    from .io import (write_json, write_labelled_chunks, write_labelled_points, write_mesh, write_spine_csv,
+                     write_spine_dxf)
     from .network import network_mesh
 
     data = model.to_dict()
@@ -753,6 +773,14 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
     if label_points is not None:
         label, distance = model.classify(label_points)
         files["points.ply"] = lambda path: write_labelled_points(path, label_points, label, distance)
+    elif label_chunks is not None:
+        count, chunks = label_chunks
+
+        def write_labels(path: Path) -> None:
+            log.info("%s: labelling %d points a chunk at a time", source, count)
+            write_labelled_chunks(path, count, ((points, *model.classify(points)) for points in chunks()))
+
+        files["points.ply"] = write_labels
     if report_points is not None:
         from .report import render_report
 
@@ -972,28 +1000,30 @@ def _failure(path: Path, exc: Exception) -> tuple[str, int]:
     return f"{path}: {_internal_error(exc)}", EXIT_FAILED
 
 
-def _prepare_points(path: Path, points, normals, args) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, dict]:
-    """``--crop`` then ``--voxel`` (:mod:`canalsurf.pointcloud`).
+def _prepare_points(path: Path, sample, args) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, dict]:
+    """``--voxel`` (:mod:`canalsurf.pointcloud`) on what :func:`canalsurf.io.read_points_sample` kept.
 
-    Returns the points inside the crop box (all of them: what ``--labels`` labels), the points and
-    normals left after the voxel grid (what is reconstructed) and a record of what was done (for the
-    summary).
+    ``sample`` holds the points inside ``--crop`` (cropped while reading), all of them or, from a
+    larger file, a seeded sample of :data:`STREAM_POINTS`.  Returns those points (what ``--labels``
+    labels when they are all of them), the points and normals left after the voxel grid (what is
+    reconstructed) and a record of what was done (for the summary).
     """
     from ._validate import MIN_POINTS
-    from .pointcloud import crop, voxel_downsample
+    from .pointcloud import voxel_downsample
 
-    record = {"points_read": len(points)}
+    points, normals = sample.points, sample.normals
+    record = {"points_read": sample.total}
     if args.crop is not None:
-        inside, normals = crop(points, args.crop, normals=normals)
-        if not len(inside):
-            # crop has checked the points are finite
-            span = ", ".join(f"{axis} {a:.6g}..{b:.6g}" for axis, a, b in zip("xyz", points.min(axis=0),
-                                                                              points.max(axis=0)))
+        if not sample.in_box and sample.total:
+            lower, upper = _bounds(path)
+            span = ", ".join(f"{axis} {a:.6g}..{b:.6g}" for axis, a, b in zip("xyz", lower, upper))
             raise InputError(f"{path}: no points inside the crop box {','.join(f'{v:g}' for v in args.crop)} (the "
                              f"points span {span}) — give a box that overlaps them ('canalsurf info {path}')")
-        points = inside
         record["crop"] = list(args.crop)
-        record["points_in_crop"] = len(points)
+        record["points_in_crop"] = sample.in_box
+    if len(points) < sample.in_box:
+        record["points_sampled"] = len(points)
+        record["sample_seed"] = STREAM_SEED
     region = points
     if args.voxel is not None:
         kept, normals = voxel_downsample(points, args.voxel, normals=normals)
@@ -1007,19 +1037,34 @@ def _prepare_points(path: Path, points, normals, args) -> tuple[np.ndarray, np.n
     return region, points, normals, record
 
 
+def _bounds(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The lower and upper corner of all the points of a file, read again a chunk at a time."""
+    from .io import iter_point_chunks
+
+    lower, upper = np.full(3, np.inf), np.full(3, -np.inf)
+    for points, _ in iter_point_chunks(path):
+        lower, upper = np.minimum(lower, points.min(axis=0)), np.maximum(upper, points.max(axis=0))
+    return lower, upper
+
+
 def _prepared_text(record: dict) -> str:
-    """``1532 of 2000 points in the crop box, 801 after --voxel 0.05; `` (empty if nothing was done)."""
+    """``1532 of 3000000 points in the crop box; 801 of 1532 points left by --voxel 0.05; `` (empty if
+    nothing was done; ``N of M points read (seeded sample)`` between the two when a large file was sampled)."""
     parts = []
+    count = record["points_read"]
     if "crop" in record:
-        parts.append(f"{record['points_in_crop']} of {record['points_read']} points in the crop box")
+        parts.append(f"{record['points_in_crop']} of {count} points in the crop box")
+        count = record["points_in_crop"]
+    if "points_sampled" in record:
+        parts.append(f"{record['points_sampled']} of {count} points read (seeded sample)")
+        count = record["points_sampled"]
     if "voxel" in record:
-        before = record.get("points_in_crop", record["points_read"])
-        parts.append(f"{record['points_after_voxel']} of {before} points left by --voxel {record['voxel']:g}")
+        parts.append(f"{record['points_after_voxel']} of {count} points left by --voxel {record['voxel']:g}")
     return "; ".join(parts) + "; " if parts else ""
 
 
 def _cmd_reconstruct(args, console: _Console) -> int:
-    from .io import read_points
+    from .io import iter_point_chunks, read_points_sample
 
     if args.mesh_format != "ply":
         try:
@@ -1043,8 +1088,12 @@ def _cmd_reconstruct(args, console: _Console) -> int:
     for path, name in zip(args.inputs, names):
         folder = args.output / name if several else args.output
         try:
-            points, normals = read_points(path)
-            region, points, normals, prepared = _prepare_points(path, points, normals, args)
+            start = time.perf_counter()
+            sample = read_points_sample(path, STREAM_POINTS, rng=STREAM_SEED, box=args.crop)
+            seconds_read = time.perf_counter() - start
+            log.info("%s: read in %.2f s", path, seconds_read)
+            region, points, normals, prepared = _prepare_points(path, sample, args)
+            prepared["read_seconds"] = seconds_read
             if args.normals == "estimate":
                 normals = None
             if args.k is not None and args.k > len(points):
@@ -1054,9 +1103,16 @@ def _cmd_reconstruct(args, console: _Console) -> int:
             log.info("%s: %d points, normals %s", path, len(points),
                      "from the file" if normals is not None else "estimated")
             model = _reconstruct_cloud(points, normals, str(path), options, console)
+            # Labels are for every point (inside --crop): those of a sampled file are read again.
+            sampled = "points_sampled" in prepared
+            label_chunks = None
+            if args.labels and sampled:
+                label_chunks = (sample.in_box, lambda path=path: (chunk for chunk, _ in
+                                                                 iter_point_chunks(path, box=args.crop)))
             files = _output_files(model, mesh_format=args.mesh_format, caps=args.caps,
                                   report_points=points if args.report else None, source=str(path),
-                                  label_points=region if args.labels else None, units=args.units,
+                                  label_points=region if args.labels and not sampled else None,
+                                  label_chunks=label_chunks, units=args.units,
                                   exports=exports, catalogue=args.catalogue,
                                   plotly_js=f"../{_plotly_js_name()}" if shared_js else None)
             try:

@@ -18,6 +18,12 @@ Other writers
     ``units``), :func:`write_json`.
 What a file holds
     :func:`point_file_info`: the format and the per-point fields, from the header.
+Files larger than memory
+    :func:`read_points_sample`: a seeded uniform sample of at most a given number of points (and
+    a crop box), read in chunks; :func:`iter_point_chunks`: all the points, a chunk at a time, for a
+    second pass; :func:`write_labelled_chunks`: a labelled point file written a chunk at a time.
+    LAS/LAZ (laspy's chunk iterator), binary PLY and ``.npy`` (memory maps), text and ASCII PLY
+    (chunks of lines) are read in bounded memory; the other formats are read whole first.
 
 Hostile files.  Each reader checks what can be checked from a file's start before reading it whole:
 the leading bytes, the header against the file's size (PLY, .npy and each .npz member, PCD, LAS/LAZ
@@ -36,6 +42,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import itertools
 import json
 import logging
 import math
@@ -44,6 +51,7 @@ import pathlib
 import secrets
 import stat
 import struct
+import warnings
 import zipfile
 from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
@@ -59,11 +67,15 @@ __all__ = [
     "POINT_WRITE_FORMATS",
     "DXF_UNITS",
     "PointFileInfo",
+    "PointSample",
     "atomic_write",
+    "iter_point_chunks",
     "point_file_info",
     "read_points",
+    "read_points_sample",
     "write_points",
     "write_json",
+    "write_labelled_chunks",
     "write_labelled_points",
     "write_mesh",
     "write_spine_csv",
@@ -203,13 +215,18 @@ def _as_xyz(columns: list[np.ndarray]) -> np.ndarray:
     return np.column_stack([np.asarray(c, dtype=np.float64) for c in columns])
 
 
-def _split_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """Split an ``(N, 3)`` or ``(N, 6)`` numeric array into points and optional normals."""
+def _check_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> None:
+    """Refuse an array that is not ``(N, 3)`` or ``(N, 6)`` numbers."""
     if arr.dtype.kind not in "iuf" or arr.ndim != 2 or arr.shape[1] not in (3, 6):
         raise InputError(
             f"{path}: {what} holds an array of shape {arr.shape} and dtype {arr.dtype}; "
             "expected (N, 3) points or (N, 6) points and normals"
         )
+
+
+def _split_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Split an ``(N, 3)`` or ``(N, 6)`` numeric array into points and optional normals."""
+    _check_columns(arr, path, what)
     arr = np.array(arr, dtype=np.float64)  # a copy: never hand out a memmap or the caller's array
     if arr.shape[1] == 6:
         return np.ascontiguousarray(arr[:, :3]), np.ascontiguousarray(arr[:, 3:])
@@ -264,6 +281,23 @@ def _rows(element: str) -> str:
 
 
 def _read_ply(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
+    with _ply_vertex(path) as (data, normals):
+        return _ply_columns(data, normals)
+
+
+def _ply_columns(data: np.ndarray, normals: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points (and normals) of rows of a PLY vertex array, as float64."""
+    points = _as_xyz([data[p] for p in "xyz"])
+    return points, _as_xyz([data[p] for p in _PLY_NORMALS]) if normals else None
+
+
+@contextlib.contextmanager
+def _ply_vertex(path: pathlib.Path) -> Iterator[tuple[np.ndarray, bool]]:
+    """The checked vertex rows of a PLY file and whether they hold normals.
+
+    Binary rows are memory-mapped by plyfile (valid also after the block), so a slice of them reads
+    only its own part of the file; ASCII rows are parsed whole.
+    """
     import plyfile
 
     fix = "re-export the file"
@@ -321,9 +355,7 @@ def _read_ply(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
         lists = [p for p in used if vertex.data.dtype[p].kind not in "iuf"]
         if lists:
             raise InputError(f"{path}: PLY vertex properties {', '.join(lists)} are lists, not numbers — {fix}")
-        points = _as_xyz([vertex[p] for p in "xyz"])
-        normals = _as_xyz([vertex[p] for p in _PLY_NORMALS]) if len(used) == 6 else None
-    return points, normals
+        yield vertex.data, len(used) == 6
 
 
 def _check_text_start(path: pathlib.Path, what: str = "text", fix: str = "export the points as text",
@@ -397,8 +429,27 @@ def _not_text(path: pathlib.Path) -> InputError:
     return InputError(f"{path}: not a text file (it holds non-UTF-8 bytes) — export the points as text")
 
 
+#: What to do about a text point file whose rows are not numbers.
+_TEXT_FIX = "give 3 (x y z) or 6 (x y z nx ny nz) numeric columns"
+
+
 def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
-    fix = "give 3 (x y z) or 6 (x y z nx ny nz) numeric columns"
+    header_lines, delimiter, ncols = _text_layout(path)
+    try:
+        # numpy's C parser does the bulk work; only on failure do we walk the lines in Python to
+        # name the offending one (loadtxt's own row numbers skip blanks and the header).
+        arr = np.loadtxt(
+            path, dtype=np.float64, delimiter=delimiter, comments="#", skiprows=header_lines,
+            ndmin=2, encoding="utf-8-sig",
+        )
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise _explain_text_error(path, header_lines, delimiter, ncols, _TEXT_FIX, exc) from None
+    return _split_columns(arr, path, "the file")
+
+
+def _text_layout(path: pathlib.Path) -> tuple[int, str | None, int]:
+    """Lines to skip (up to the header line, if any), the delimiter and the number of columns."""
+    fix = _TEXT_FIX
     _check_text_start(path)
     try:
         head = _first_lines(path, 2)
@@ -420,17 +471,7 @@ def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     ncols = len(_fields(line, delimiter))
     if ncols not in (3, 6):
         raise InputError(f"{path}: line {number} has {ncols} columns — {fix}")
-
-    try:
-        # numpy's C parser does the bulk work; only on failure do we walk the lines in Python to
-        # name the offending one (loadtxt's own row numbers skip blanks and the header).
-        arr = np.loadtxt(
-            path, dtype=np.float64, delimiter=delimiter, comments="#", skiprows=header_lines,
-            ndmin=2, encoding="utf-8-sig",
-        )
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise _explain_text_error(path, header_lines, delimiter, ncols, fix, exc) from None
-    return _split_columns(arr, path, "the file")
+    return header_lines, delimiter, ncols
 
 
 def _explain_text_error(
@@ -514,11 +555,21 @@ def _check_npy_size(shape: tuple[int, ...], dtype: np.dtype, data_bytes: int, pa
         raise _more_data(path, what, rows)
 
 
-def _read_npy(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
-    fix = "save an (N, 3) or (N, 6) array with numpy.save"
+#: What to do about a .npy file that does not hold points.
+_NPY_FIX = "save an (N, 3) or (N, 6) array with numpy.save"
+
+
+def _check_npy(path: pathlib.Path) -> tuple[int, ...]:
+    """Check a .npy file's header against its size; its shape."""
     with open(path, "rb") as fh:
-        shape, dtype, header = _npy_header(fh, path, "NumPy .npy", fix)
-    _check_npy_size(shape, dtype, path.stat().st_size - header, path, "NumPy .npy", fix)
+        shape, dtype, header = _npy_header(fh, path, "NumPy .npy", _NPY_FIX)
+    _check_npy_size(shape, dtype, path.stat().st_size - header, path, "NumPy .npy", _NPY_FIX)
+    return shape
+
+
+def _read_npy(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
+    fix = _NPY_FIX
+    _check_npy(path)
     with _translating(path, "NumPy .npy", fix):
         # allow_pickle=False: a point file must never be able to run code on load
         arr = np.load(path, allow_pickle=False)
@@ -869,6 +920,17 @@ def _check_laz_layers(path: pathlib.Path, laszip: bytes, first: int, chunk_bytes
 
 
 def _read_las(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
+    parts = list(_las_chunks(path, _LAS_CHUNK_POINTS))
+    points = np.concatenate([p for p, _ in parts])
+    return points, None if parts[0][1] is None else np.concatenate([n for _, n in parts])
+
+
+def _las_chunks(path: pathlib.Path, chunk: int) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
+    """The points (and normals) of a LAS/LAZ file, ``chunk`` at a time, in file order.
+
+    At least one (perhaps empty) chunk is given; a file that holds fewer points than its header
+    declares fails after its last chunk.
+    """
     suffix = path.suffix.lower()
     laspy = _import_extra("laspy", suffix, "las")
     what = suffix[1:].upper()
@@ -880,9 +942,8 @@ def _read_las(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
         if not laspy.LazBackend.detect_available():
             raise _missing_extra(".laz", "las")
         _check_laz_chunks(path, layout, _import_extra("lazrs", ".laz", "las"), what)
-    parts, normal_parts = [], []
-    # errstate: extra dimensions with odd scales may overflow; the result is then refused as non-finite
-    with _translating(path, what, fix), _library_logs("laspy"), np.errstate(all="ignore"):
+    held = 0
+    with _translating(path, what, fix), _library_logs("laspy"):
         # the single-threaded decoder: it decodes chunk by chunk as the points are asked for
         backend = laspy.LazBackend.Lazrs if layout.compressed else None
         with laspy.open(path, laz_backend=backend) as reader:
@@ -890,24 +951,27 @@ def _read_las(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
             names = {name.lower(): name for name in header.point_format.extra_dimension_names}
             spelling = next((s for s in _LAS_NORMALS if all(n in names for n in s)), None)
             scales, offsets = header.scales, header.offsets
-            for chunk in reader.chunk_iterator(_LAS_CHUNK_POINTS):
-                # the integer records times scale plus offset, in float64 -- the full precision of the
-                # file (never cast through float32, which loses millimetres at 1e6)
-                parts.append(_as_xyz([np.asarray(chunk[axis]) * scales[i] + offsets[i]
-                                      for i, axis in enumerate("XYZ")]))
-                if spelling is not None:
-                    columns = [np.asarray(chunk[names[n]]) for n in spelling]
-                    if any(c.ndim != 1 for c in columns):
-                        raise InputError(f"{path}: {what} normal dimensions {[names[n] for n in spelling]} "
-                                         "hold several values per point, not one — re-export the file")
-                    normal_parts.append(_as_xyz(columns))
-    held = sum(len(p) for p in parts)
+            for records in reader.chunk_iterator(chunk):
+                # errstate: extra dimensions with odd scales may overflow; the result is then refused
+                # as non-finite.  Held only here, not while the caller has the chunk.
+                with np.errstate(all="ignore"):
+                    # the integer records times scale plus offset, in float64 -- the full precision of
+                    # the file (never cast through float32, which loses millimetres at 1e6)
+                    points = _as_xyz([np.asarray(records[axis]) * scales[i] + offsets[i]
+                                      for i, axis in enumerate("XYZ")])
+                    normals = None
+                    if spelling is not None:
+                        columns = [np.asarray(records[names[n]]) for n in spelling]
+                        if any(c.ndim != 1 for c in columns):
+                            raise InputError(f"{path}: {what} normal dimensions {[names[n] for n in spelling]} "
+                                             "hold several values per point, not one — re-export the file")
+                        normals = _as_xyz(columns)
+                held += len(points)
+                yield points, normals
     if held != layout.count:
         raise _truncated(path, what, layout.count, held)
-    points = np.concatenate(parts) if parts else np.empty((0, 3))
-    if spelling is None:
-        return points, None
-    return points, np.concatenate(normal_parts) if normal_parts else np.empty((0, 3))
+    if not held:
+        yield np.empty((0, 3)), None if spelling is None else np.empty((0, 3))
 
 
 #: Points read from an E57 scan per call into bounded buffers: memory follows what the file stores,
@@ -1092,6 +1156,389 @@ def _reader(path: PathLike) -> tuple[pathlib.Path, Callable]:
             f"use one of {', '.join(POINT_FORMATS)}"
         )
     return path, reader
+
+
+# --------------------------------------------------------------------------------------------------
+# streaming: files larger than memory, read in chunks
+
+#: Points converted at a time when a file is streamed: 2**16 points are 1.5 MB as float64
+#: coordinates, and a chunk of a LAZ file takes about 9 MB with laspy's buffers and the conversion
+#: (measured with tracemalloc; 4 times as much at 2**18, no faster), far below the sample kept,
+#: while the work per chunk (a few numpy calls) stays negligible beside the points' own.
+_STREAM_CHUNK_POINTS = 1 << 16
+#: The rows kept are cut back to the sample's size whenever this share of it more has piled up: each
+#: cut copies what is held, so a cut per ``_SAMPLE_SLACK`` samples of new rows copies each row about
+#: (1 + slack) / slack times, while at most (1 + slack) samples are held beside one chunk -- 2 x 48 MB
+#: of coordinates for the command line's 2,000,000 points.
+_SAMPLE_SLACK = 1.0
+#: numpy types of the scalar property types of PLY (both spellings of the specification).
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+_Chunks = Iterator[tuple[np.ndarray, "np.ndarray | None"]]
+
+
+def _whole_chunks(path: pathlib.Path, reader: Callable, chunk: int) -> _Chunks:
+    """A format without a chunked reader: read whole, then handed out in chunks."""
+    points, normals = reader(path)
+    for start in range(0, max(len(points), 1), chunk):
+        yield points[start:start + chunk], None if normals is None else normals[start:start + chunk]
+
+
+def _ply_chunks(path: pathlib.Path, chunk: int) -> _Chunks:
+    """Binary PLY through plyfile's memory map, a slice at a time; ASCII PLY of vertices only parsed in
+    chunks of lines; any other ASCII PLY (more elements) read whole."""
+    layout = _ascii_ply_layout(path)
+    if layout is not None:
+        yield from _ascii_ply_chunks(path, *layout, chunk)
+        return
+    with _ply_vertex(path) as (data, normals):
+        for start in range(0, max(len(data), 1), chunk):
+            yield _ply_columns(data[start:start + chunk], normals)
+
+
+def _ascii_ply_layout(path: pathlib.Path) -> tuple[int, list[str], list[str]] | None:
+    """Vertex count, property names and their PLY types of an ASCII PLY 1.0 file whose only element is
+    ``vertex`` with scalar ``x y z``; ``None`` for any other file (read by :func:`_ply_vertex`, which
+    also names what is wrong with a bad one)."""
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_HEADER_BYTES)
+    lines, start = [], 0
+    while (end := head.find(b"\n", start)) >= 0:
+        try:
+            words = head[start:end].decode("ascii").split()
+        except UnicodeDecodeError:
+            return None
+        start = end + 1
+        if words == ["end_header"]:
+            break
+        lines.append(words)
+    else:
+        return None
+    if lines[:1] != [["ply"]] or len(lines) < 2 or lines[1] != ["format", "ascii", "1.0"]:
+        return None
+    elements: list[tuple[str, str, list[list[str]]]] = []
+    for words in lines[2:]:
+        if words[:1] == ["element"] and len(words) == 3:
+            elements.append((words[1], words[2], []))
+        elif words[:1] == ["property"] and elements:
+            elements[-1][2].append(words[1:])
+        elif words[:1] not in (["comment"], ["obj_info"]):
+            return None  # not a header plyfile reads: let it say what is wrong
+    if len(elements) != 1 or elements[0][0] != "vertex" or not elements[0][1].isdigit():
+        return None
+    _, count, props = elements[0]
+    names = [words[-1] for words in props]
+    if (any(len(words) != 2 or words[0] not in _PLY_TYPES for words in props) or len(set(names)) != len(names)
+            or not set("xyz") <= set(names)):
+        return None
+    return int(count), names, [words[0] for words in props]
+
+
+def _ascii_ply_chunks(path: pathlib.Path, count: int, names: list[str], types: list[str], chunk: int) -> _Chunks:
+    """The vertices of an ASCII PLY file (see :func:`_ascii_ply_layout`), ``chunk`` lines at a time.
+
+    Each value is parsed into its declared type, as plyfile does: a ``float`` x holds float32 values, an
+    ``int`` property refuses ``1.5`` and a ``uchar`` 300.
+    """
+    fix = "re-export the file"
+    record = np.dtype([(name, _PLY_TYPES[kind]) for name, kind in zip(names, types)])
+    normals = set(_PLY_NORMALS) <= set(names)
+
+    def parse(rows: list[str]) -> np.ndarray | None:
+        """The rows as records, or None if one is not a value of each declared type (or blank)."""
+        try:
+            table = np.loadtxt(rows, dtype=record, comments=None, ndmin=1)
+        except ValueError:
+            return None
+        return table if len(table) == len(rows) else None
+
+    held = 0
+    try:
+        with open(path, encoding="ascii") as fh:
+            for line in iter(lambda: fh.readline(_MAX_LINE_CHARS), ""):
+                if line.split() == ["end_header"]:
+                    break
+            while lines := list(itertools.islice(fh, chunk)):
+                rows, rest = lines[:count - held], lines[count - held:]
+                if any(line.strip() for line in rest):
+                    raise _more_data(path, "PLY", count, _rows("vertex"))
+                if not rows:
+                    continue
+                table = parse(rows)
+                if table is None:  # the first bad row, by halving (a parse of at most twice the rows)
+                    good, bad = 0, len(rows)
+                    while bad - good > 1:
+                        middle = (good + bad) // 2
+                        good, bad = (middle, bad) if parse(rows[:middle]) is not None else (good, middle)
+                    shown = rows[good].strip()
+                    shown = shown if len(shown) <= 60 else shown[:57] + "..."
+                    raise InputError(f"{path}: PLY vertex {held + good + 1} ({shown!r}) is not one value of each "
+                                     f"type the header declares ({' '.join(types)}) — {fix}")
+                held += len(rows)
+                yield (_as_xyz([table[name] for name in "xyz"]),
+                       _as_xyz([table[name] for name in _PLY_NORMALS]) if normals else None)
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a readable PLY file (its ASCII data holds other bytes) — {fix}") from None
+    if held < count:
+        raise _truncated(path, "PLY", count, held, _rows("vertex"))
+    if not count:
+        yield np.empty((0, 3)), np.empty((0, 3)) if normals else None
+
+
+def _text_chunks(path: pathlib.Path, chunk: int) -> _Chunks:
+    """A text point file, ``chunk`` lines at a time (numpy's parser on each)."""
+    header_lines, delimiter, ncols = _text_layout(path)
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            for _ in itertools.islice(fh, header_lines):
+                pass
+            while lines := list(itertools.islice(fh, chunk)):
+                with warnings.catch_warnings():
+                    # a chunk of comment lines only is no error here (the file has data, see above)
+                    warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+                    table = np.loadtxt(lines, dtype=np.float64, delimiter=delimiter, comments="#", ndmin=2)
+                if not table.size:
+                    continue
+                if table.shape[1] != ncols:  # a chunk whose rows all have another number of columns
+                    raise ValueError(f"{table.shape[1]} columns")
+                yield _split_columns(table, path, "the file")
+    except (ValueError, UnicodeDecodeError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise _explain_text_error(path, header_lines, delimiter, ncols, _TEXT_FIX, exc) from None
+
+
+def _npy_chunks(path: pathlib.Path, chunk: int) -> _Chunks:
+    """A .npy array memory-mapped, a slice of rows at a time (a .npz archive named .npy: read whole)."""
+    if _numpy_kind(path) != "npy":
+        yield from _whole_chunks(path, _read_numpy, chunk)
+        return
+    shape = _check_npy(path)
+    with _translating(path, "NumPy .npy", _NPY_FIX):
+        # allow_pickle=False: a point file must never be able to run code on load
+        table = np.load(path, mmap_mode="r" if math.prod(shape) else None, allow_pickle=False)
+    _check_columns(table, path, "the file")
+    for start in range(0, max(len(table), 1), chunk):
+        yield _split_columns(table[start:start + chunk], path, "the file")
+
+
+#: Readers that give a file's points in chunks, by suffix; other formats are read whole.
+_CHUNK_READERS: dict[str, Callable[[pathlib.Path, int], _Chunks]] = {
+    ".ply": _ply_chunks,
+    ".xyz": _text_chunks,
+    ".txt": _text_chunks,
+    ".csv": _text_chunks,
+    ".asc": _text_chunks,
+    ".npy": _npy_chunks,
+    ".las": _las_chunks,
+    ".laz": _las_chunks,
+}
+
+
+def _chunks(path: pathlib.Path, reader: Callable) -> _Chunks:
+    """The points (and normals) of a checked file, at most ``_STREAM_CHUNK_POINTS`` at a time, in file
+    order; at least one chunk, perhaps empty."""
+    chunked = _CHUNK_READERS.get(path.suffix.lower())
+    if chunked is None:
+        return _whole_chunks(path, reader, _STREAM_CHUNK_POINTS)
+    return chunked(path, _STREAM_CHUNK_POINTS)
+
+
+def _box_mask(points: np.ndarray, corners: np.ndarray | None) -> np.ndarray | None:
+    """Which points lie inside the box (faces included), as :func:`canalsurf.pointcloud.crop` keeps them."""
+    if corners is None:
+        return None
+    return np.all((points >= corners[0]) & (points <= corners[1]), axis=1)
+
+
+def _as_corners(box) -> np.ndarray | None:
+    if box is None:
+        return None
+    from .pointcloud import _as_box
+
+    return _as_box(box)
+
+
+class PointSample(NamedTuple):
+    """What :func:`read_points_sample` returns."""
+
+    #: ``(M, 3)`` float64: the points kept, in file order.
+    points: np.ndarray
+    #: ``(M, 3)`` float64 normals of those points, or ``None`` when the file has none.
+    normals: np.ndarray | None
+    #: Points in the file.
+    total: int
+    #: Points the sample was drawn from: those inside ``box`` (``total`` without a box).  ``M`` is
+    #: ``min(in_box, max_points)``; the sample holds all of them when ``M == in_box``.
+    in_box: int
+
+
+def read_points_sample(path: PathLike, max_points: int, *, rng=0, box=None) -> PointSample:
+    """Read a seeded uniform random sample of at most ``max_points`` points, in bounded memory.
+
+    The file is read in chunks and only the sample is kept, so memory follows ``max_points`` and the
+    chunk size, not the file: LAS/LAZ through laspy's chunk iterator, binary PLY and ``.npy`` through
+    a memory map, text and ASCII PLY in chunks of lines.  Other formats (``.npz``, PCD, E57, PLY
+    with more elements than vertices in ASCII) are read whole first: the sample is the same, the
+    memory is not bounded.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A point file, as for :func:`read_points`.
+    max_points : int
+        Most points kept (at least 1).  A file with at most this many (inside ``box``) gives all
+        of them: then the result is what :func:`read_points` (and :func:`canalsurf.pointcloud.crop`)
+        give, point for point.
+    rng : int or numpy.random.Generator, optional
+        Seed or generator of the sample.  The same seed gives the same sample of the same file,
+        whatever the chunk size.
+    box : sequence of 6 floats, optional
+        ``(xmin, ymin, zmin, xmax, ymax, zmax)``: keep only points inside (faces included), before
+        sampling -- a small box in a large scan keeps up to ``max_points`` of its own points.
+
+    Returns
+    -------
+    PointSample
+        ``points`` and ``normals`` of the sample, in file order; ``total``, the points in the file;
+        ``in_box``, those inside ``box``.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_points`; also a point with NaN or infinite coordinates (the row is named),
+        a ``max_points`` below 1 or a bad ``box``.
+
+    Notes
+    -----
+    Every point (inside the box) gets a uniform random key, drawn from one generator in file order;
+    the sample is the ``max_points`` points of the smallest keys (of two equal keys, the earlier
+    point's).  That is a uniform sample without replacement, and it does not depend on how the file
+    is cut into chunks.  Rows whose keys cannot reach the sample any more are dropped at once, and the
+    rows kept are cut back to ``max_points`` whenever as many again have piled up: memory is
+    O(chunk + max_points), time O(N) plus O(max_points log(N / max_points)) for the cuts (rows reach
+    the sample ever more rarely as the file goes on).
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import numpy as np
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "cloud.npy"
+    >>> np.save(path, np.random.default_rng(0).normal(size=(10_000, 3)))
+    >>> sample = read_points_sample(path, 1000, rng=1)
+    >>> sample.points.shape, sample.normals, sample.total, sample.in_box
+    ((1000, 3), None, 10000, 10000)
+    >>> bool(np.array_equal(read_points_sample(path, 20_000).points, read_points(path)[0]))
+    True
+    """
+    path, reader = _reader(path)
+    if isinstance(max_points, bool) or not isinstance(max_points, (int, np.integer)) or max_points < 1:
+        raise InputError(f"max_points must be a whole number >= 1, got {max_points!r}")
+    corners = _as_corners(box)
+    _check_readable(path)
+    generator = np.random.default_rng(rng)
+    total = 0
+
+    def keyed() -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+        nonlocal total
+        for points, normals in _chunks(path, reader):
+            finite = np.isfinite(points)
+            if not finite.all():
+                first = total + int(np.flatnonzero(~finite.all(axis=1))[0])
+                raise InputError(f"{path}: point {first} (counting from 0) has NaN or inf coordinates — remove "
+                                 "the rows with NaN or inf")
+            total += len(points)
+            inside = _box_mask(points, corners)
+            if inside is not None:
+                points = points[inside]
+                normals = None if normals is None else normals[inside]
+            yield generator.random(len(points)), points, normals
+
+    in_box, points, normals = _smallest_keys(keyed(), int(max_points))
+    log.info("%s: %d of %d points kept (seeded sample of at most %d)", path, len(points), in_box, max_points)
+    return PointSample(points, normals, total, in_box)
+
+
+def _smallest_keys(chunks, k: int) -> tuple[int, np.ndarray, np.ndarray | None]:
+    """The rows of the ``k`` smallest keys over all ``(keys, points, normals)`` chunks, in row order.
+
+    Ties go to the earlier row, so the rows kept do not depend on how the rows are cut into chunks.
+    Rows are only ever dropped, never reordered: what is kept stays in row order throughout.
+    Returns the number of rows seen, and the points and normals kept.
+    """
+    kept: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
+    held = seen = 0
+    limit = np.inf  # the largest key kept, once k are kept: a row with a larger key never gets in
+    for keys, points, normals in chunks:
+        seen += len(keys)
+        if limit < np.inf:
+            near = keys < limit
+            keys, points = keys[near], points[near]
+            normals = None if normals is None else normals[near]
+        kept.append((keys, points, normals))
+        held += len(keys)
+        if held > k + max(1, int(_SAMPLE_SLACK * k)):
+            kept = [_cut(kept, k)]
+            held, limit = k, float(kept[0][0].max())
+    _, points, normals = _cut(kept, k)
+    return seen, points, normals
+
+
+def _cut(parts: list, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The ``k`` rows of ``parts`` (in row order) with the smallest keys, the earlier of equal keys first;
+    all of them if fewer; joined, in row order."""
+    keys = np.concatenate([part[0] for part in parts])
+    keep = None
+    if len(keys) > k:
+        kth = np.partition(keys, k - 1)[k - 1]
+        keep = keys < kth
+        tied = np.flatnonzero(keys == kth)  # in row order
+        keep[tied[:k - np.count_nonzero(keep)]] = True
+    # Each part is cut by its share of the mask and the pieces joined: the points are copied once, in
+    # sequence (a mask, not a list of rows, also keeps the row order).
+    masks = [slice(None)] * len(parts) if keep is None else np.split(keep, np.cumsum([len(p[0]) for p in parts])[:-1])
+    points = np.concatenate([part[1][mask] for part, mask in zip(parts, masks)])
+    normals = None if parts[0][2] is None else np.concatenate([part[2][mask] for part, mask in zip(parts, masks)])
+    return keys if keep is None else keys[keep], points, normals
+
+
+def iter_point_chunks(path: PathLike, *, box=None) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
+    """The points (and normals) of a file, a chunk at a time, in file order, in bounded memory.
+
+    The chunks are those :func:`read_points_sample` reads (a few hundred thousand points each; the
+    formats it reads whole are read whole here too); with ``box`` only the points inside it, and
+    chunks left empty are skipped.  For a second pass over a file too large to hold, such as
+    labelling every point of a scan with :meth:`canalsurf.network.Network.classify`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A point file, as for :func:`read_points`.
+    box : sequence of 6 floats, optional
+        ``(xmin, ymin, zmin, xmax, ymax, zmax)``, faces included.
+
+    Yields
+    ------
+    points : (n, 3) float64 ndarray
+    normals : (n, 3) float64 ndarray or None
+
+    Raises
+    ------
+    InputError
+        As :func:`read_points` (a damaged part of a file only when it is reached).
+    """
+    path, reader = _reader(path)
+    corners = _as_corners(box)
+    _check_readable(path)
+    for points, normals in _chunks(path, reader):
+        inside = _box_mask(points, corners)
+        if inside is not None:
+            points = points[inside]
+            normals = None if normals is None else normals[inside]
+        if len(points):
+            yield points, normals
 
 
 class PointFileInfo(NamedTuple):
@@ -1450,29 +1897,76 @@ def write_points(path: PathLike, points: np.ndarray, normals: np.ndarray | None)
         atomic_write(path, write)
 
 
+#: The vertex record of a labelled point file: coordinates, branch id and signed distance.
+_LABELLED_RECORD = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("branch", "<i4"), ("distance", "<f8")])
+#: Its PLY header (the vertex count goes into the ``{}``), as plyfile writes it for that record.
+_LABELLED_HEADER = ("ply\nformat binary_little_endian 1.0\ncomment written by canalsurf: branch -1 is on no tube\n"
+                    "element vertex {}\nproperty double x\nproperty double y\nproperty double z\n"
+                    "property int branch\nproperty double distance\nend_header\n")
+
+
 def write_labelled_points(path: PathLike, points, label, distance) -> None:
     """Write points with their branch id and signed distance as a binary PLY, atomically.
 
     The vertex element holds ``x, y, z`` (float64), ``branch`` (int32; -1 for a point on no tube) and
     ``distance`` (float64, from the surface, positive outside; NaN where unknown): scalar fields that
     CloudCompare and most point tools colour by or split on.
-    """
-    import plyfile
 
+    See Also
+    --------
+    write_labelled_chunks : the same file, written a chunk at a time.
+    """
     points = np.asarray(points, dtype=np.float64)
-    label = np.asarray(label).reshape(-1)
-    distance = np.asarray(distance, dtype=np.float64).reshape(-1)
-    if points.ndim != 2 or points.shape[1] != 3 or not len(points) == len(label) == len(distance):
-        raise InputError(f"labelled points need points (N, 3), label (N,) and distance (N,), got "
-                         f"{points.shape}, {label.shape}, {distance.shape}")
-    vertex = np.empty(len(points), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("branch", "<i4"),
-                                          ("distance", "<f8")])
-    vertex["x"], vertex["y"], vertex["z"] = points.T
-    vertex["branch"] = label
-    vertex["distance"] = np.where(np.isfinite(distance), distance, np.nan)
-    data = plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")], text=False, byte_order="<",
-                           comments=["written by canalsurf: branch -1 is on no tube"])
-    atomic_write(path, lambda tmp: data.write(str(tmp)))
+    write_labelled_chunks(path, len(points), [(points, label, distance)])
+
+
+def write_labelled_chunks(path: PathLike, count: int, chunks) -> None:
+    """Write labelled points that come in chunks, as :func:`write_labelled_points` does, atomically.
+
+    For a file too large to hold: the header (with ``count``) is written first, then the records of
+    each chunk as it comes, so memory follows one chunk.  The file is the same, byte for byte, as
+    :func:`write_labelled_points` writes for all the points at once.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    count : int
+        Points in all the chunks together.
+    chunks : iterable of tuple
+        ``(points, label, distance)`` per chunk: ``(n, 3)``, ``(n,)`` and ``(n,)`` arrays.
+
+    Raises
+    ------
+    InputError
+        A chunk of mismatched shapes, or chunks holding other than ``count`` points (no file is left).
+    """
+    count = int(count)
+
+    def write(tmp: pathlib.Path) -> None:
+        written = 0
+        with open(tmp, "wb") as fh:
+            fh.write(_LABELLED_HEADER.format(count).encode("ascii"))
+            for points, label, distance in chunks:
+                points = np.asarray(points, dtype=np.float64)
+                label = np.asarray(label).reshape(-1)
+                distance = np.asarray(distance, dtype=np.float64).reshape(-1)
+                if points.ndim != 2 or points.shape[1] != 3 or not len(points) == len(label) == len(distance):
+                    raise InputError(f"labelled points need points (N, 3), label (N,) and distance (N,), got "
+                                     f"{points.shape}, {label.shape}, {distance.shape}")
+                record = np.empty(len(points), dtype=_LABELLED_RECORD)
+                record["x"], record["y"], record["z"] = points.T
+                record["branch"] = label
+                record["distance"] = np.where(np.isfinite(distance), distance, np.nan)
+                written += len(record)
+                if written > count:
+                    break
+                fh.write(record.tobytes())
+        if written != count:
+            got = "more" if written > count else str(written)
+            raise InputError(f"{path}: {count} points were to be labelled, the chunks held {got} — the input "
+                             "changed while it was read; run again")
+
+    atomic_write(path, write)
 
 
 def write_mesh(path: PathLike, vertices, faces) -> None:
