@@ -447,9 +447,8 @@ def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     return _split_columns(arr, path, "the file")
 
 
-def _text_layout(path: pathlib.Path) -> tuple[int, str | None, int]:
-    """Lines to skip (up to the header line, if any), the delimiter and the number of columns."""
-    fix = _TEXT_FIX
+def _text_head(path: pathlib.Path) -> list:
+    """The first two lines of a text point file (checked to be text with data rows)."""
     _check_text_start(path)
     try:
         head = _first_lines(path, 2)
@@ -457,6 +456,13 @@ def _text_layout(path: pathlib.Path) -> tuple[int, str | None, int]:
         raise _not_text(path) from None
     if not head:
         raise InputError(f"{path}: holds no data rows — export the points as text, one point a line")
+    return head
+
+
+def _text_layout(path: pathlib.Path) -> tuple[int, str | None, int]:
+    """Lines to skip (up to the header line, if any), the delimiter and the number of columns."""
+    fix = _TEXT_FIX
+    head = _text_head(path)
 
     # One header line is allowed: the first line is a header if it does not parse as numbers.  The
     # delimiter is sniffed from the first *data* line, since a header may be spelled differently.
@@ -1639,13 +1645,7 @@ def _ply_fields(path: pathlib.Path) -> tuple[str, list[str]]:
 
 
 def _text_fields(path: pathlib.Path) -> tuple[str, list[str]]:
-    _check_text_start(path)
-    try:
-        head = _first_lines(path, 2)
-    except UnicodeDecodeError:
-        raise _not_text(path) from None
-    if not head:
-        raise InputError(f"{path}: holds no data rows — export the points as text, one point a line")
+    head = _text_head(path)
     first = head[0][1]
     data = first if _is_numeric_row(_fields(first, _sniff_delimiter(first))) else head[-1][1]
     delimiter = _sniff_delimiter(data)
