@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -259,6 +260,29 @@ def run_cli(cloud: Path, out: Path) -> tuple[float, int, dict, int]:
     return wall, usage.ru_maxrss * 1024, summary, proc.returncode
 
 
+#: Runs of each process in the start-up comparison (interleaved; the median is kept).
+STARTUP_RUNS = 7
+#: Target: a 2,000-point reconstruction within this many times a process that only imports numpy and
+#: scipy.spatial.
+STARTUP_TARGET = 1.5
+
+
+def bench_startup(workdir: Path) -> str:
+    """A table row: median wall seconds of a bare ``import numpy, scipy.spatial`` process and of a
+    2,000-point ``canalsurf reconstruct``, run one after the other ``STARTUP_RUNS`` times, and their ratio."""
+    cloud = workdir / "startup.ply"
+    _helper("prepare", 2000, cloud, 1)
+    bare, full = [], []
+    for i in range(STARTUP_RUNS):
+        start = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "import numpy, scipy.spatial"], check=True)
+        bare.append(time.perf_counter() - start)
+        full.append(run_cli(cloud, workdir / f"startup-{i}")[0])
+    a, b = statistics.median(bare), statistics.median(full)
+    return ("| import numpy, scipy.spatial s | reconstruct 2,000 points s | ratio | target |\n|---|---|---|---|\n"
+            f"| {a:.2f} | {b:.2f} | {b / a:.2f} | ≤ {STARTUP_TARGET:g} |")
+
+
 def verdict(row: dict) -> str:
     """Whether ``row`` meets the targets of its size: "yes", or what missed; "" without targets."""
     if row["points"] not in TARGETS:
@@ -328,6 +352,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-scene", action="store_true", help="leave out the benchmark scene")
     parser.add_argument("--stream", type=int, metavar="N",
                         help="also stream a LAZ file of N points of the scene (e.g. 10000000)")
+    parser.add_argument("--startup", action="store_true",
+                        help="also compare a 2,000-point run with a process that only imports numpy and scipy")
     parser.add_argument("--helper", nargs="+", help=argparse.SUPPRESS)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
@@ -356,12 +382,15 @@ def main(argv=None) -> int:
             print(table(rows[-1:]).splitlines()[-1], flush=True)
         scene = None if args.no_scene else scene_table(bench_scene(Path(tmp)))
         stream = None if args.stream is None else stream_table(bench_stream(args.stream, Path(tmp)))
+        startup = bench_startup(Path(tmp)) if args.startup else None
     text = table(rows) if rows else ""
     print(text)
     if scene:
         print(scene)
     if stream:
         print(stream)
+    if startup:
+        print(startup)
     if args.markdown:
         args.markdown.write_text(
             "# Performance\n\nMade by `" + " ".join(["python", "benchmarks/bench.py", *argv]) + "` on the development machine "
@@ -391,7 +420,11 @@ def main(argv=None) -> int:
                "reconstructs a seeded sample of `STREAM_POINTS` of its points (*of which reading*: the time it "
                "takes to read the file and keep the sample; *stages*: the pipeline's stages, as in the tables "
                "above); *ratio* = canalsurf / laspy; "
-               f"targets: ratio ≤ {STREAM_TARGETS[0]:g}, peak ≤ {STREAM_TARGETS[1]:,} MB.\n\n" + stream + "\n"))
+               f"targets: ratio ≤ {STREAM_TARGETS[0]:g}, peak ≤ {STREAM_TARGETS[1]:,} MB.\n\n" + stream + "\n")
+            + ("" if startup is None else
+               "\n## Start-up\n\nMedian wall seconds of a process that only runs `import numpy, scipy.spatial` and "
+               f"of a whole 2,000-point `canalsurf reconstruct` (all files written), run in turn {STARTUP_RUNS} "
+               "times.\n\n" + startup + "\n"))
     return 0
 
 
