@@ -65,6 +65,12 @@ JUNCTION_EXCLUSION_RADII = 1.5
 ASSIGN_RADII = 0.5
 #: ... the first estimate continued this many radii past its open ends (the thin set may stop short).
 ASSIGN_END_RADII = 1.0
+#: A fitted open end that grew by more than this many radii past the estimate its points were taken
+#: about (which reach ASSIGN_END_RADII past it) may go on: its points are taken again about the fit and
+#: it is fitted again, at most MAX_GROW_ROUNDS times (a thin set that stops radii short of a tube's end
+#: would otherwise cut the model short there, with nothing to show it).
+GROW_RADII = 0.5
+MAX_GROW_ROUNDS = 6
 #: Rounds of "fit, drop the branches that are no tube, join the branches they separated".
 MAX_FIT_ROUNDS = 3
 
@@ -584,6 +590,29 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     return True, ""
 
 
+def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, guesses: list, skel: Skeleton,
+          curved: np.ndarray, kind: str) -> tuple[_BranchFit, np.ndarray]:
+    """Branch ``i``'s fit and the indices of its points (``idx``), grown where an open end grew towards
+    the edge of its points: the points are assigned again about the fit (continued ASSIGN_END_RADII past
+    its ends, like the first estimate) and the branch fitted again, until no end grows by more than
+    ``GROW_RADII`` or ``MAX_GROW_ROUNDS``.  The refinement's own end placement stops it at a gap in the
+    points, as before."""
+    guesses = list(guesses)
+    free = [e for e in (0, 1) if skel.branches[i].ends[e] is None and not guesses[i]["closed"]]
+    for _ in range(MAX_GROW_ROUNDS):
+        g = guesses[i]
+        tangent = g["spine"].derivative()(np.array([0.0, 1.0]))
+        outward = tangent / np.linalg.norm(tangent, axis=1, keepdims=True) * np.array([[-1.0], [1.0]])
+        if not any((fit.spine(float(e)) - g["spine"](float(e))) @ outward[e] > GROW_RADII * g["eq6"] for e in free):
+            break
+        length, grown = curve_length(g["spine"]), curve_length(fit.spine)
+        nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
+        guesses[i] = {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)}
+        idx = _assign(points, guesses, skel.junctions, skel, curved)[i]
+        fit = _fit_branch(points[idx], guesses[i], kind=kind, refine=True)
+    return fit, idx
+
+
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
                  quantum: float, curved: np.ndarray, kappa: np.ndarray):
     """Fit every branch; drop those that are no tube and join the branches they separated.
@@ -605,6 +634,8 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                     continue
                 try:
                     fits[i] = _fit_branch(points[idx], guess, kind=kind, refine=refine)
+                    if refine:
+                        fits[i], idx = _grow(points, fits[i], idx, i, guesses, skel, curved, kind)
                     fits[i].kappa = kappa[idx]
                 except ReconstructionError as exc:
                     if len(skel.branches) == 1:
