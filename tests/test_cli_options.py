@@ -96,8 +96,10 @@ def exports(monkeypatch) -> dict:
     calls = {}
     pieces = ["pipe NPS 2 x 10", "cap"]
 
-    def decompose(network, *, units, catalogue):
-        calls["decompose"] = {"network": network, "units": units, "catalogue": catalogue}
+    def decompose(network, points=None, *, units, catalogue):
+        # the pieces are fitted to the points reconstructed: record how many were given
+        calls["decompose"] = {"network": network, "points": None if points is None else len(points), "units": units,
+                              "catalogue": catalogue}
         return pieces
 
     def write_pipes_csv(path, given, *, units):
@@ -146,6 +148,7 @@ def test_demo_takes_units_and_exports(tmp_path, capsys, seen, exports):
     assert ezdxf.readfile(tmp_path / "spine.dxf").header["$INSUNITS"] == 1
     assert _names(tmp_path) == BASE_FILES | {"input.ply", "pipes.csv"}
     assert exports["decompose"]["units"] == "in" and exports["decompose"]["catalogue"] == "en"
+    assert exports["decompose"]["points"] == cli.DEMO_POINTS
     out = capsys.readouterr().out
     assert "pipes.csv" in out and "note" not in out
 
@@ -160,7 +163,8 @@ def test_exports_are_written_with_the_rest(cloud, tmp_path, capsys, seen, export
     assert _names(tmp_path) == BASE_FILES | {"model.ifc", "model.step", "pipes.csv"}
     network = exports["decompose"]["network"]
     assert isinstance(network, Network) and network.branches[0].mean_radius == 1.0
-    assert exports["decompose"] == {"network": network, "units": "mm", "catalogue": "en"}
+    assert exports["decompose"] == {"network": network, "points": network.diagnostics["n_points"], "units": "mm",
+                                    "catalogue": "en"}
     # pipes.csv and model.ifc are made of the same pieces, decomposed once
     assert exports["write_pipes_csv"] == {"name": "pipes.csv", "pieces": exports["pieces"], "units": "mm"}
     assert exports["write_ifc"] == {"name": "model.ifc", "network": network, "units": "mm",

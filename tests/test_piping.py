@@ -37,32 +37,18 @@ TRUTH = synth.piping_truth()
 EXACT_RADII = 1e-3
 #: ... and every bend angle to this many degrees.
 EXACT_DEGREES = 1e-3
-#: End to end (seed 1, 40,000 points, noise 1 % of the radius): the ends of every piece at a fitting
-#: (an elbow's tangent points, the tee's junction) within 1 % of the radius of the truth (measured at
-#: most 0.92 % over seeds 1 - 5).
-FITTING_END_RADII = 0.01
-#: ... a straight as long as the truth to 1 % of the radius, between two fittings (measured at most
-#: 0.5 %) or from a fitting to where the model's spine is cut (measured at most 0.91 %);
-STRAIGHT_RADII = 0.01
-#: ... bend angles within 1 degree (measured at most 0.013 degrees);
+#: End to end: a scan of 40,000 points (a plant-like density: some 27 points around an NPS 2 pipe, 7 mm
+#: apart) with noise of 0.5 % of the radius (0.3 mm on NPS 4), decomposed with its points.  Every length
+#: and end within 1 % of the radius of the truth: the ends of every piece at a fitting (an elbow's tangent
+#: points, the tee's junction), a straight's length between two fittings or from a fitting to where the
+#: model's spine is cut, an elbow's bend radius and arc length, a reducer's ends and length.
+N_SCAN, NOISE, SEED = 40_000, 0.005, 1
+PIECE_RADII = 0.01
+#: ... bend angles within 1 degree;
 ANGLE_DEGREES = 1.0
-#: ... bend radii and the elbows' arc lengths within 2 % of the radius.  The scan's spine rounds the
-#: corner where a straight meets an elbow by up to 2 % of the radius (its smoothing spline cannot turn
-#: sharply), and the bend radius follows it: measured at most 1.25 % (radius) and 1.56 % (arc length)
-#: over seeds 1 - 5, the arc of the tight NPS 2 elbow (bend radius 2.5 tube radii) the worst.
-ELBOW_RADII = 0.02
-#: ... a free (cut) end lies where the model's spine ends; the reconstruction puts that within 1.6 % of
-#: the radius of the true end on the pipes, 5.6 % on the canal of the reducer (seeds 1 - 5): checked to
-#: this share of the radius.
+#: ... a free (cut) end lies where the model's spine ends, which the reconstruction puts within a few per
+#: cent of the radius of the true end (up to 5.6 % on the canal of the reducer): checked to this share.
 FREE_END_RADII = 0.1
-#: The reducer: the reconstruction's radius function (a smoothing spline of some 8 segments over the
-#: 1.1 m branch) spreads the 102 mm step over some 210 mm, so its ramp is found about 2 radii too long
-#: (measured 1.92 - 2.01 radii of NPS 4 over seeds 1 - 5).  It must cover the true reducer and have its
-#: middle within this many radii of the true middle (measured at most 0.10 radii).
-REDUCER_MIDDLE_RADII = 0.5
-#: Points and seed of the end-to-end scan (a plant-like density: some 27 points around an NPS 2 pipe,
-#: 7 mm apart).
-N_SCAN, SEED = 40_000, 1
 
 
 # --- helpers ---------------------------------------------------------------------------------------------
@@ -213,19 +199,25 @@ def test_pieces_join_tangent_continuously():
 
 
 def test_units_rotation_and_placement_do_not_matter():
-    """The network in metres, turned and moved: the same pieces, sizes and angles, lengths / 1000."""
+    """The network in metres, turned and moved: the same pieces, sizes and angles, lengths / 1000.
+
+    The fit stops at its tolerance, and a gentle elbow's bend radius hardly moves the chain (the 3R 45-degree
+    elbow's middle by 0.08 of a change of it), so the two fits agree to about 1e-5 of the radius (measured
+    at most 0.5 micrometres on its 57 mm): checked to 1e-4, a hundredth of the accuracy asked of a piece.
+    """
     turn = Rotation.from_euler("zyx", [30.0, -20.0, 50.0], degrees=True).as_matrix()
     shift = np.array([512.0, -40.0, 7.5])
     reference = decompose(_true_network(), units="mm")
     moved = decompose(_true_network(scale=1e-3, transform=(turn, shift)), units="m")
     assert [p.type for p in moved] == [p.type for p in reference]
     for p, q in zip(reference, moved):
+        tol = 1e-4 * p.outside_diameter / 2 / 1000
         assert (q.nominal, q.end_nominal, q.branches) == (p.nominal, p.end_nominal, p.branches)
-        assert q.length == pytest.approx(p.length / 1000, rel=1e-6, abs=1e-9)
-        np.testing.assert_allclose(q.start, p.start / 1000 @ turn.T + shift, rtol=0, atol=1e-6)
+        assert q.length == pytest.approx(p.length / 1000, rel=0, abs=tol)
+        np.testing.assert_allclose(q.start, p.start / 1000 @ turn.T + shift, rtol=0, atol=tol)
         if p.type == "elbow":
             assert q.angle == pytest.approx(p.angle, abs=1e-4)  # the fit converges to about 1e-6 degrees
-            assert q.bend_radius == pytest.approx(p.bend_radius / 1000, rel=1e-6)
+            assert q.bend_radius == pytest.approx(p.bend_radius / 1000, rel=0, abs=tol)
         assert q.catalogue_diameter == pytest.approx(p.catalogue_diameter / 1000, rel=1e-12)
 
 
@@ -306,6 +298,18 @@ def test_a_run_that_is_not_piping_is_refused():
     with pytest.raises(ReconstructionError, match=r"^branch 0 is no chain of straights and elbows: with \d+ "
                                                   r"elbows its spine is still .* — it is not piping"):
         decompose(CanalModel("pipe", spine_f(), radius_f(), closed), units="m")
+
+
+def test_a_run_that_is_not_piping_is_left_out_with_a_warning():
+    """A coil beside the piping: its run is left out (named, with why), the rest decomposed as without it."""
+    spine_f, radius_f, closed, *_ = synth.SURFACES["fig9-pipe"]
+    network = _true_network()
+    coil = CanalModel("pipe", spine_f(), radius_f(), closed, id=len(network.branches))
+    with pytest.warns(UserWarning, match=rf"^branch {coil.id} is no chain of straights and elbows: .* — it is "
+                                         r"not piping, .*; it is left out of the pieces$"):
+        pieces = decompose(Network([*network.branches, coil], network.junctions), units="mm")
+    reference = decompose(network, units="mm")
+    assert [(p.type, p.branch, p.nominal) for p in pieces] == [(p.type, p.branch, p.nominal) for p in reference]
 
 
 def test_a_single_branch_is_decomposed():
@@ -467,40 +471,41 @@ def test_csv_into_a_missing_folder_is_refused(tmp_path):
 
 @pytest.fixture(scope="module")
 def scanned():
-    cloud = synth.make_network("piping", n=N_SCAN, noise=0.01, rng=SEED)
-    return canalsurf.reconstruct(cloud.points)
+    cloud = synth.make_network("piping", n=N_SCAN, noise=NOISE, rng=SEED)
+    return cloud.points, canalsurf.reconstruct(cloud.points)
 
 
 def test_reconstruction_finds_the_piping_branches(scanned):
-    assert len(scanned.branches) == 6 and len(scanned.junctions) == 1
-    assert len(scanned.junctions[0].ends) == 3
-    assert sorted(b.kind for b in scanned.branches) == ["canal"] + ["pipe"] * 5
+    _, network = scanned
+    assert len(network.branches) == 6 and len(network.junctions) == 1
+    assert len(network.junctions[0].ends) == 3
+    assert sorted(b.kind for b in network.branches) == ["canal"] + ["pipe"] * 5
 
 
 @pytest.mark.parametrize("catalogue, size", [("asme", "nps"), ("en", "dn")])
 def test_end_to_end_every_piece_found(scanned, catalogue, size):
-    pieces = decompose(scanned, units="mm", catalogue=catalogue)
+    points, network = scanned
+    pieces = decompose(network, points, units="mm", catalogue=catalogue)
     assert all(isinstance(p, Piece) for p in pieces)
     free = _free_ends()
-    model_ends = np.array([b.spine(float(e)) for b in scanned.branches for e in (0, 1) if b.ends[e] is None])
+    model_ends = np.array([b.spine(float(e)) for b in network.branches for e in (0, 1) if b.ends[e] is None])
     small = {"asme": "NPS 2", "en": "DN 50"}[catalogue]
     for t, p in _matched(pieces):
         r = t.outside_diameter / 2
         if t.type == "reducer":
-            # Its ramp covers the true reducer; its sizes are the plateaus' either side, in the order of
-            # the run (which the reconstruction may have turned round).
+            # Its sizes are the plateaus' either side, in the order of the run (which the reconstruction
+            # may have turned round).
             lo, hi = _ends(t, p)
-            forward = (t.end - t.start) / t.length
-            assert (lo - t.start) @ forward <= 0 and (hi - t.start) @ forward >= t.length
-            assert np.linalg.norm(_middle(p) - _middle(t)) <= REDUCER_MIDDLE_RADII * r
+            np.testing.assert_allclose([lo, hi], [t.start, t.end], rtol=0, atol=PIECE_RADII * r)
+            assert p.length == pytest.approx(t.length, abs=PIECE_RADII * r)
             sizes = (p.nominal, p.end_nominal) if lo is p.start else (p.end_nominal, p.nominal)
             assert sizes == (getattr(t, size), small)
             continue
         assert p.nominal == getattr(t, size), f"{t.type} on branch {t.branch}"
         if t.type == "tee":
-            np.testing.assert_allclose(p.start, t.start, rtol=0, atol=FITTING_END_RADII * r)
+            np.testing.assert_allclose(p.start, t.start, rtol=0, atol=PIECE_RADII * r)
             assert p.outlet_nominal == small and p.end_nominal == p.nominal
-            run = {b.id for b in scanned.branches if b.kind == "pipe" and abs(b.mean_radius - 57.15) < 1}
+            run = {b.id for b in network.branches if b.kind == "pipe" and abs(b.mean_radius - 57.15) < 1}
             assert set(p.branches[:2]) <= run and len(set(p.branches)) == 3
             continue
         ends = _ends(t, p)
@@ -512,17 +517,17 @@ def test_end_to_end_every_piece_found(scanned, catalogue, size):
                 assert np.linalg.norm(model_ends - end, axis=1).min() <= 1e-9 * r
                 assert np.linalg.norm(end - true_end) <= FREE_END_RADII * r
             elif not reducer:  # the reducer's ends are checked with it
-                assert np.linalg.norm(end - true_end) <= FITTING_END_RADII * r, f"{t.type} on branch {t.branch}"
+                assert np.linalg.norm(end - true_end) <= PIECE_RADII * r, f"{t.type} on branch {t.branch}"
         if t.type == "elbow":
             assert p.angle == pytest.approx(t.angle, abs=ANGLE_DEGREES)
-            assert p.bend_radius == pytest.approx(t.bend_radius, abs=ELBOW_RADII * r)
-            assert p.length == pytest.approx(t.length, abs=ELBOW_RADII * r)
+            assert p.bend_radius == pytest.approx(t.bend_radius, abs=PIECE_RADII * r)
+            assert p.length == pytest.approx(t.length, abs=PIECE_RADII * r)
         elif not any(at_free):
-            assert p.length == pytest.approx(t.length, abs=STRAIGHT_RADII * r)
+            assert p.length == pytest.approx(t.length, abs=PIECE_RADII * r)
         elif not any(at_reducer):
             # Up to the model's cut end: as long as the truth from its other end to there.
             cut_end, other = (ends[0], t.end) if at_free[0] else (ends[1], t.start)
-            assert p.length == pytest.approx(np.linalg.norm(cut_end - other), abs=STRAIGHT_RADII * r)
+            assert p.length == pytest.approx(np.linalg.norm(cut_end - other), abs=PIECE_RADII * r)
         assert p.fit_deviation <= p.fit_tolerance
 
 

@@ -727,7 +727,7 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
                   source: str | None = None, label_points=None,
                   label_chunks: tuple[int, Callable[[], Iterator[np.ndarray]]] | None = None,
                   units: str | None = None, exports: dict | None = None, catalogue: str | None = None,
-                  plotly_js: str | None = None) -> dict[str, Callable]:
+                  plotly_js: str | None = None, scan_points=None) -> dict[str, Callable]:
     """Everything a reconstruction writes, computed now; name -> ``write(path)`` callables.
 
     With ``report_points`` (the input points) the files include ``report.html`` about ``source``
@@ -737,7 +737,8 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
     a chunk at a time, writes the same file for points too many to hold: each chunk is labelled and
     written as it comes, when the file is written (not now).  ``units`` is declared in spine.dxf;
     ``exports`` (option -> module, from :func:`_export_modules`) adds model.ifc, model.step and
-    pipes.csv, in ``units`` or, without, :data:`DEFAULT_EXPORT_UNITS`.
+    pipes.csv, in ``units`` or, without, :data:`DEFAULT_EXPORT_UNITS`; its pipe pieces are fitted to
+    ``scan_points`` (the points reconstructed) when given.
 
     Raises
     ------
@@ -769,7 +770,7 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
         splines = [(b.spine.t, b.spine.c, b.spine.k, s[2], s[3]) for b, s in zip(model.branches, samples)]
         files["spine.dxf"] = lambda path: write_spine_dxf(path, splines, units=units)
     files.update(_export_files(model, exports or {}, units=units or DEFAULT_EXPORT_UNITS,
-                               catalogue=catalogue or CATALOGUES[0]))
+                               catalogue=catalogue or CATALOGUES[0], points=scan_points))
     if label_points is not None:
         label, distance = model.classify(label_points)
         files["points.ply"] = lambda path: write_labelled_points(path, label_points, label, distance)
@@ -789,18 +790,18 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
     return files
 
 
-def _export_files(model, exports: dict, *, units: str, catalogue: str) -> dict[str, Callable]:
+def _export_files(model, exports: dict, *, units: str, catalogue: str, points=None) -> dict[str, Callable]:
     """model.ifc, model.step and pipes.csv as asked for (``exports``: option -> module).
 
-    The pipe pieces are decomposed now, once, and model.ifc is built from the same pieces when
-    both are asked for.
+    The pipe pieces are decomposed now, once (fitted to the scan's ``points`` when given), and model.ifc
+    is built from the same pieces when both are asked for.
     """
     files = {}
     pieces = None
     if "piping" in exports:
         piping = exports["piping"]
         with _warnings_to_log():
-            pieces = piping.decompose(model, units=units, catalogue=catalogue)
+            pieces = piping.decompose(model, points, units=units, catalogue=catalogue)
         files[EXPORTS["piping"].file] = lambda path: piping.write_pipes_csv(path, pieces, units=units)
     if "ifc" in exports:
         ifc = exports["ifc"]
@@ -1113,7 +1114,7 @@ def _cmd_reconstruct(args, console: _Console) -> int:
                                   report_points=points if args.report else None, source=str(path),
                                   label_points=region if args.labels and not sampled else None,
                                   label_chunks=label_chunks, units=args.units,
-                                  exports=exports, catalogue=args.catalogue,
+                                  exports=exports, catalogue=args.catalogue, scan_points=points,
                                   plotly_js=f"../{_plotly_js_name()}" if shared_js else None)
             try:
                 if shared_js and not done:
@@ -1172,7 +1173,7 @@ def _cmd_demo(args, console: _Console) -> int:
     files = {"input.ply": lambda path: write_points(path, tube.points, None)}
     files.update(_output_files(model, report_points=tube.points if args.report else None,
                                source=f"canalsurf demo ({DEMO_SURFACE})", units=args.units, exports=exports,
-                               catalogue=args.catalogue))
+                               catalogue=args.catalogue, scan_points=tube.points))
     try:
         written = _write_files(folder, files)
     except OSError as exc:

@@ -37,12 +37,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ._validate import choice, positive
+from ._validate import as_points, choice, positive
 from .errors import InputError, ReconstructionError
 from .spine import curve_length, sample_arclength
 
-__all__ = ["Piece", "Snap", "decompose", "snap_size", "write_pipes_csv", "CATALOGUES", "UNITS", "PIECE_TYPES",
-           "CSV_COLUMNS"]
+__all__ = ["Piece", "Snap", "decompose", "snap_size", "surface_ramp", "write_pipes_csv", "CATALOGUES", "UNITS",
+           "PIECE_TYPES", "CSV_COLUMNS"]
 
 #: Millimetres per unit of the model's coordinates (the catalogues are in millimetres).
 UNITS = {"m": 1000.0, "mm": 1.0, "ft": 304.8, "in": 25.4}
@@ -116,6 +116,22 @@ SPARSITY_REACH = 2
 #: No bend is tighter than this many tube radii: a torus of smaller bend radius folds on itself (a
 #: short-radius elbow bends at about 2 radii).
 MIN_BEND_RADII = 1.0
+#: With the scan's points (``decompose(..., points=...)``) the chain is fitted once more, to the points
+#: around it: a scan's spine (a smoothing spline) rounds the corner where a straight meets an elbow, by up
+#: to 2 % of the radius, and the bend radius and arc length follow it (up to 1.3 % and 1.6 % of the radius
+#: on the ``piping`` network, seeds 1 - 5); its points do not round it.  Those used lie within this many
+#: tolerances of the tube's surface (stray points and other tubes' points do not) ...
+POINT_BAND_TOLERANCES = 3.0
+#: ... at most this many per run (a seeded subsample: many more than the chain's few dozen unknowns need).
+FIT_POINTS = 20_000
+#: ... and a reducer's cone is measured without this share of its length at either end, where its
+#: knuckles round it.
+KNUCKLE_SHARE = 0.25
+#: The model's radius is still changing where it differs from both sizes of a step by more than this
+#: share of the step.
+RAMP_TAIL = 0.02
+#: Fewest points about a reducer for its ramp from the points.
+MIN_STEP_POINTS = 150
 #: A canal branch holds a reducer when the two sizes of its radius' best step differ by more than this
 #: share of the larger: less than the 4.3 % between the closest neighbouring catalogue sizes.
 MIN_SIZE_STEP = 0.04
@@ -229,8 +245,9 @@ class Piece:
         ``(run, outlet)``.
     fit_deviation : float or None
         Farthest distance of the branch's spine samples on this piece from the fitted chain, in the
-        model's units (None for a tee).  At most ``fit_tolerance``, except on a reducer: the chain is not
-        held to the spine where the radius changes (module docstring), and this says how far it wanders.
+        model's units (None for a tee), where the model's radius does not change: at most
+        ``fit_tolerance``.  A reducer's is over all its samples: the chain is not held to the spine where
+        the radius changes (module docstring), and this says how far the spine wanders there.
     fit_tolerance : float or None
         The tolerance the chain of its run was held to (None for a tee).
     """
@@ -430,10 +447,16 @@ def _point_at(chain: _Chain, position: float) -> np.ndarray:
 # the chain of straights and elbows: the fit
 
 
-def _fit(points: np.ndarray, vertices: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _fit(points: np.ndarray, vertices: np.ndarray, radii: np.ndarray, offsets=0.0,
+         spread: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Interior work points and bend radii minimising the squared distances of ``points`` from the chain
-    (the end work points stay where the spine ends; lengths in units of the tube's radius, so a bend
-    radius stays at least ``MIN_BEND_RADII``)."""
+    less ``offsets`` (the end work points stay where the spine ends; lengths in units of the tube's
+    radius, so a bend radius stays at least ``MIN_BEND_RADII``).
+
+    Spine samples lie on the chain (``offsets`` 0); a scan's points lie on the tube around it (``offsets``
+    the tube's radius at each), and with ``spread`` (their scatter) a point farther off than that counts
+    less and less (the soft-L1 loss): a stray point or one of another tube next to it does not pull.
+    """
     m = len(radii)
     if m == 0:
         return vertices, radii
@@ -444,7 +467,7 @@ def _fit(points: np.ndarray, vertices: np.ndarray, radii: np.ndarray) -> tuple[n
         return v, np.exp(x[3 * m:])
 
     def residual(x):
-        return _project(points, _chain(*unpack(x)))[0]
+        return _project(points, _chain(*unpack(x)))[0] - offsets
 
     # A sample's distance depends only on the bends near the piece it is nearest to (a bend's tangent
     # points share their legs with the neighbouring bends'): finite differences need only a few
@@ -456,8 +479,9 @@ def _fit(points: np.ndarray, vertices: np.ndarray, radii: np.ndarray) -> tuple[n
     lowest = math.log(MIN_BEND_RADII)
     x0 = np.concatenate([vertices[1:-1].ravel(), np.maximum(np.log(np.maximum(radii, 1e-300)), lowest + 1e-9)])
     bounds = (np.r_[np.full(3 * m, -np.inf), np.full(m, lowest)], np.full(4 * m, np.inf))
+    robust = {} if spread is None else {"loss": "soft_l1", "f_scale": spread}
     result = least_squares(residual, x0, bounds=bounds, method="trf", xtol=FIT_TOLERANCE, ftol=FIT_TOLERANCE,
-                           gtol=FIT_TOLERANCE, max_nfev=MAX_FIT_EVALUATIONS, jac_sparsity=sparsity)
+                           gtol=FIT_TOLERANCE, max_nfev=MAX_FIT_EVALUATIONS, jac_sparsity=sparsity, **robust)
     return unpack(result.x)
 
 
@@ -607,6 +631,30 @@ def _fit_chain(points: np.ndarray, tangents: np.ndarray, spacing: float, radius:
     return _chain(vertices, radii)
 
 
+def _fit_to_points(chain: _Chain, cloud: np.ndarray, radius, holes: list, spine: np.ndarray, tol: float) -> _Chain:
+    """The chain fitted again to the scan's points ``cloud`` around it (unit coordinates of the run).
+
+    A point's distance from the chain less the tube's radius there (``radius``, a function of the
+    position along the chain) is its residual; points along the ``holes`` (positions along the chain:
+    reducers, whose radius the model smooths) and those farther than ``POINT_BAND_TOLERANCES`` tolerances
+    from the tube's surface are left out.  The new chain is taken only if it stays within ``tol`` of the
+    ``spine`` samples, as the first did; otherwise the first is kept.
+    """
+    dist, along, _ = _project(cloud, chain)
+    offset = radius(along)
+    use = np.abs(dist - offset) <= POINT_BAND_TOLERANCES * tol
+    for a, b in holes:
+        use &= (along < a) | (along > b)
+    use = np.flatnonzero(use)
+    if len(use) < 4 * len(chain.vertices):
+        return chain
+    if len(use) > FIT_POINTS:
+        use = np.sort(np.random.default_rng(0).choice(use, FIT_POINTS, replace=False))
+    vertices, radii = _fit(cloud[use], chain.vertices, chain.radii, offset[use], spread=tol / TOLERANCE_RMS)
+    fitted = _chain(vertices, radii)
+    return fitted if _project(spine, fitted)[0].max() <= tol else chain
+
+
 # --------------------------------------------------------------------------------------------------
 # sizes along a run: plateaus and reducers
 
@@ -666,8 +714,54 @@ def _step(s: np.ndarray, r: np.ndarray) -> tuple[float, float, float, float]:
     return float(r1[0]), float(r2[0]), a, b
 
 
+def _corners(s: np.ndarray, r: np.ndarray, step: tuple) -> tuple[float, float, float, float]:
+    """A size ``step`` (r1, r2, a, b) of :func:`_step` with its ramp's ends where its knuckles do not pull.
+
+    Knuckles round the corners of a reducer's profile, and unevenly (a canal surface rounds its convex
+    corner more), which pulls the corners of a constant - linear - constant fit: the ends are where the
+    line of the ramp's middle (without ``KNUCKLE_SHARE`` of its length at either end) meets the two sizes
+    (means over a ramp's length either side, without as much next to it).
+    """
+    r1, r2, a, b = step
+    cut, width = KNUCKLE_SHARE * (b - a), b - a
+    before = (s > a - cut - width) & (s < a - cut)
+    cone = (s > a + cut) & (s < b - cut)
+    after = (s > b + cut) & (s < b + cut + width)
+    if min(before.sum(), cone.sum(), after.sum()) < 3:
+        return step
+    slope, level = np.polyfit(s[cone], r[cone], 1)
+    if slope == 0:
+        return step
+    r1, r2 = float(np.mean(r[before])), float(np.mean(r[after]))
+    a, b = sorted(((r1 - level) / slope, (r2 - level) / slope))
+    return r1, r2, a, b
+
+
+def surface_ramp(r1: float, r2: float, a: float, b: float) -> tuple[float, float]:
+    """Where the surface of a canal whose radius runs linearly from ``r1`` at ``a`` to ``r2`` at ``b``
+    (arc lengths along a straight spine) meets its two sizes.
+
+    A canal surface is the envelope of its spheres: where the radius changes with slope ``k``, the
+    sphere at ``s`` touches the surface at ``s - r k`` (ahead of it, towards the smaller size) on a circle
+    of radius ``r sqrt(1 - k^2)``.  Its cone is therefore steeper than the ramp of the radius and shifted
+    towards the smaller size: a 4 x 2 reducer's by some 0.13 of either radius.  Returns the arc lengths
+    where the lines ``r1`` and ``r2`` meet that cone; ``(a, b)`` when the radius does not change or changes
+    too fast for an envelope (``|k| >= 1``).
+    """
+    if not b > a or r1 == r2:
+        return a, b
+    k = (r2 - r1) / (b - a)
+    if abs(k) >= 1.0:
+        return a, b
+    c = math.sqrt(1.0 - k * k)
+    # The contact circle of the sphere of radius r lies at a + (r - r1) / k - r k with radius r c.
+    return tuple(a + (r / c - r1) / k - r * k / c for r in (r1, r2))
+
+
 def _reducers(s: np.ndarray, r: np.ndarray, *, shortest: float) -> list:
-    """Where along a run (arc lengths) its size steps: the ramps of its reducers, in order.
+    """Where along a run (arc lengths) its size steps, in order: per reducer the step of the model's
+    radius ``(r1, r2, a, b)`` (:func:`_step`) and the ramp of its surface ``(a, b)`` (:func:`_corners`,
+    :func:`surface_ramp`).
 
     A step counts when its two sizes differ by more than ``MIN_SIZE_STEP`` of the larger and by more
     than ``STEP_SIGNIFICANCE`` times the RMS wavering of the radius about the step, and each size holds
@@ -682,8 +776,32 @@ def _reducers(s: np.ndarray, r: np.ndarray, *, shortest: float) -> list:
             or a - s[0] < shortest or s[-1] - b < shortest):
         return []
     left, right = s <= a, s >= b
-    return [*_reducers(s[left], r[left], shortest=shortest), (a, b),
+    surface = surface_ramp(*_corners(s, r, (r1, r2, a, b)))
+    return [*_reducers(s[left], r[left], shortest=shortest), ((r1, r2, a, b), surface),
             *_reducers(s[right], r[right], shortest=shortest)]
+
+
+def _ramp_from_points(cloud: np.ndarray, chain: _Chain, ramp: tuple, sizes: tuple, margin: float) -> tuple:
+    """A reducer's ramp (positions along the chain) from the scan's points ``cloud`` about it.
+
+    The distances of the points from the chain (the straight reducer's axis) within ``margin`` of the
+    ``ramp`` found on the model's radius, against their positions along it, are fitted as constant -
+    linear - constant (:func:`_step`): the model's radius function spreads a step over its knot spacing,
+    the points do not.  The ramp must lie within the margin and the sizes either side within
+    ``MIN_SIZE_STEP`` of the model's ``sizes``; otherwise the model's ``ramp`` is kept.
+    """
+    lo, hi = ramp[0] - margin, ramp[1] + margin
+    dist, along, _ = _project(cloud, chain)
+    small, large = min(sizes), max(sizes)
+    near = (along > lo) & (along < hi) & (dist > small / 2) & (dist < large * 1.5)
+    if near.sum() < MIN_STEP_POINTS:
+        return ramp
+    order = np.argsort(along[near], kind="stable")
+    x, y = along[near][order], dist[near][order]
+    r1, r2, a, b = _corners(x, y, _step(x, y))
+    if lo < a < b < hi and all(abs(x - y) <= MIN_SIZE_STEP * large for x, y in zip((r1, r2), sizes)):
+        return a, b
+    return ramp
 
 
 # --------------------------------------------------------------------------------------------------
@@ -735,7 +853,7 @@ def _runs(branches: dict, junction_ends: dict) -> list[list]:
 # the public functions
 
 
-def decompose(network, *, units: str = "m", catalogue: str = "asme") -> list[Piece]:
+def decompose(network, points=None, *, units: str = "m", catalogue: str = "asme") -> list[Piece]:
     """Decompose a network's pipes into straights, elbows, tees and reducers with catalogue sizes.
 
     Each run (a branch, or branches joined at junctions of two) is fitted by a tangent-continuous chain
@@ -749,6 +867,11 @@ def decompose(network, *, units: str = "m", catalogue: str = "asme") -> list[Pie
     ----------
     network : Network or CanalModel
         The reconstruction (:func:`canalsurf.reconstruct`), or a single branch.
+    points : array_like, shape (N, 3), optional
+        The scan it was reconstructed from.  With them the chain of each run is fitted once more, to the
+        points around it, and each reducer's ramp is found from them: a scan's spine rounds the corner
+        where a straight meets an elbow and its radius function spreads a reducer's step, the points do
+        not.  Without them the pieces follow the model alone.
     units : {"m", "mm", "ft", "in"}
         Units of the model's coordinates (the catalogues are in millimetres).
     catalogue : {"asme", "en"}
@@ -765,21 +888,21 @@ def decompose(network, *, units: str = "m", catalogue: str = "asme") -> list[Pie
     InputError
         ``network`` is not a network or branch, or ``units`` or ``catalogue`` is unknown.
     ReconstructionError
-        A branch whose spine no chain of straights and elbows follows within its tolerance (it is not
-        piping, or its model is too rough).
+        No run is piping: no chain of straights and elbows follows its spine within its tolerance (it is
+        not piping, or its model is too rough).
 
     Warns
     -----
     UserWarning
-        A junction of three whose ends are none in line (still called a tee), or of four or more
-        branches (no fitting is made for it).
+        A run that is not piping (it is left out, and so are the tees it meets), a junction of three whose
+        ends are none in line (still called a tee), or of four or more branches (no fitting is made for it).
 
     Notes
     -----
     A piece shorter than the tolerance is left out (two elbows welded together have no straight between
-    them).  A reducer's length is that of the radius function's step, which a scan's smoothing spline
-    spreads over its knot spacing: a short reducer comes out longer than it is (its sizes and middle are
-    sound).  A free end of a run is where the model's spine ends.  A loop is cut at the t = 0 end of its
+    them).  Without ``points`` a reducer's length is that of the model's radius step, which a scan's
+    smoothing spline spreads over its knot spacing: a short reducer comes out longer than it is (its sizes
+    and middle are sound).  A free end of a run is where the model's spine ends.  A loop is cut at the t = 0 end of its
     lowest branch id, so its first and last pieces may be two parts of one.
 
     Examples
@@ -796,6 +919,8 @@ def decompose(network, *, units: str = "m", catalogue: str = "asme") -> list[Pie
     """
     units = choice(units, "units", tuple(UNITS))
     catalogue = choice(catalogue, "catalogue", tuple(CATALOGUES))
+    if points is not None:
+        points = as_points(points, min_points=1)
     branches, junctions = _parts(network)
     junction_ends: dict = {}
     for b in branches.values():
@@ -804,12 +929,23 @@ def decompose(network, *, units: str = "m", catalogue: str = "asme") -> list[Pie
                 junction_ends.setdefault(j, []).append((b.id, e))
     pieces: list[Piece] = []
     ends = {}  # (branch, end) -> (the Snap of the branch's size there, the direction into it), for the tees
+    refusals = []
     for run in _runs(branches, junction_ends):
-        pieces += _run_pieces(run, branches, units, catalogue, len(pieces), ends)
+        try:
+            pieces += _run_pieces(run, branches, units, catalogue, len(pieces), ends, points)
+        except ReconstructionError as exc:
+            refusals.append(str(exc))
+    if not pieces:
+        raise ReconstructionError(refusals[0] if len(refusals) == 1 else
+                                  f"no run of the {len(branches)} branches is piping: " + "; ".join(refusals))
+    for reason in refusals:
+        warnings.warn(f"{reason}; it is left out of the pieces", stacklevel=2)
     points = {j.id: np.asarray(j.point, float) for j in junctions}
     for j in sorted(junction_ends):
         meeting = junction_ends[j]
-        if len(meeting) == 3:
+        if len(meeting) == 3 and any(end not in ends for end in meeting):
+            warnings.warn(f"junction {j}: a branch of it is not piping, so it gets no tee", stacklevel=2)
+        elif len(meeting) == 3:
             pieces.append(_tee(len(pieces), j, points.get(j), meeting, branches, ends))
         elif len(meeting) > 3:
             warnings.warn(f"junction {j}: {len(meeting)} branches meet there; only tees (three) are made into "
@@ -877,9 +1013,10 @@ def _intervals(lo: float, hi: float, holes: list) -> list:
     return out
 
 
-def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id: int, ends: dict) -> list:
-    """The pieces of one run, numbered from ``first_id``; records in ``ends`` the size of each branch
-    at each of its ends (for the tees)."""
+def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id: int, ends: dict,
+                points: np.ndarray | None) -> list:
+    """The pieces of one run, numbered from ``first_id``, fitted to ``points`` too if given; records in
+    ``ends`` the size of each branch at each of its ends (for the tees)."""
     radius = min(float(np.min(branches[b].radius(np.linspace(0.0, 1.0, 64)))) for b, _ in run)
     if not radius > 0:
         raise ReconstructionError(f"branch {run[0][0]} has no positive radius — it cannot be piping")
@@ -898,27 +1035,52 @@ def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id:
     # any unit and placement.
     origin, scale = pts[0], radius
     unit_pts = (pts - origin) / scale
-    steps = _reducers(s, r, shortest=MIN_PLATEAU_RADII * radius)
+    shortest = MIN_PLATEAU_RADII * radius
+    steps = _reducers(s, r, shortest=shortest)
     # A reducer is straight; where the radius changes, a scan's spine is no better than its radius
     # function (a canal fitted to a cone wanders off the axis), so the chain is fitted to, and held to
-    # its tolerance on, the spine outside the reducers.
+    # its tolerance on, the spine outside the model's radius steps -- and their tails, which the model's
+    # smoothing spreads (within the plateaus' least length).
     fitted = np.ones(len(s), bool)
-    for a, b in steps:
-        fitted &= (s < a) | (s > b)
+    for (r1, r2, a, b), _ in steps:
+        margin = RAMP_TAIL * abs(r2 - r1)
+        changing = (np.abs(r - r1) > margin) & (np.abs(r - r2) > margin)
+        fitted &= ((s < a) | (s > b)) & ~(changing & (s > a - shortest) & (s < b + shortest))
+    steps = [surface for _, surface in steps]
     chain = _fit_chain(unit_pts[fitted], _tangents(unit_pts)[fitted], spacing / scale, 1.0, tol / scale,
                        s[-1] / scale, names)
+    along = _project(unit_pts, chain)[1]
+    ramps = [(float(np.interp(a, s, along)), float(np.interp(b, s, along))) for a, b in steps]
+    if points is not None:
+        # The points in a box about the run (which holds its tube), in the run's unit coordinates.
+        reach = 2.0 * float(r.max())
+        inside = np.all((points >= pts.min(axis=0) - reach) & (points <= pts.max(axis=0) + reach), axis=1)
+        cloud = (points[inside] - origin) / scale
+        order = np.argsort(along, kind="stable")
+        at, radii = along[order], r[order] / scale
+
+        def size(x):  # the model's radius at positions x along the first chain, in units of the run's radius
+            return np.interp(x, at, radii)
+
+        margin = shortest / scale
+        chain = _fit_to_points(chain, cloud, size, [(a - margin, b + margin) for a, b in ramps],
+                               unit_pts[fitted], tol / scale)
+        along = _project(unit_pts, chain)[1]
+        ramps = [_ramp_from_points(cloud, chain, (a, b), (size(a - margin), size(b + margin)), margin)
+                 for a, b in ((float(np.interp(a, s, along)), float(np.interp(b, s, along))) for a, b in steps)]
     dist, along, _ = _project(unit_pts, chain)
     dist, along = dist * scale, along * scale
+    ramps = [(a * scale, b * scale) for a, b in ramps]
     lengths = chain.lengths * scale
     total = float(lengths.sum())
-    ramps = [(float(np.interp(a, s, along)), float(np.interp(b, s, along))) for a, b in steps]
 
     def nearest(x):  # the spine sample nearest to a position along the chain
         return int(np.argmin(np.abs(along - x)))
 
-    def diameter(x0, x1):
+    def diameter(x0, x1):  # the model's mean, where its radius is not changing if it holds anywhere there
         i0, i1 = sorted((nearest(x0), nearest(x1)))
-        return 2.0 * float(np.mean(r[i0:i1 + 1]))
+        held = fitted[i0:i1 + 1]
+        return 2.0 * float(np.mean(r[i0:i1 + 1][held] if held.any() else r[i0:i1 + 1]))
 
     def snap(d, x0, x1):
         b = branches[int(owner[nearest((x0 + x1) / 2)])]
@@ -938,7 +1100,9 @@ def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id:
     for lo, hi, k in sorted(items, key=lambda item: (item[0], item[1])):
         if k is not None and hi - lo <= tol:
             continue  # shorter than the accuracy: no piece
-        near = (along >= lo) & (along <= hi)
+        # The chain is held to the spine where the model's radius does not change (a reducer is measured
+        # by how far the spine wanders from it there).
+        near = (along >= lo) & (along <= hi) & (fitted | (k is None))
         middle = int(owner[nearest((lo + hi) / 2)])
         # The branches it touches: those of the samples inside it; a reducer (which may have no length, at
         # a junction of two sizes) also the samples just either side of it.

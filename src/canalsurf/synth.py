@@ -1001,10 +1001,18 @@ def _piping_parts():
     # radius is constant, linear over the reducer, constant.
     lengths = (500.0, _REDUCER_4X2, 500.0)
     spine, _ = _pipe_run([3800.0, 0.0, 0.0], y, [("straight", sum(lengths))], 5, _NPS4_OD)
-    # The radius: the cone's line between the two sizes, its corners rounded over _REDUCER_KNUCKLE either
-    # side (a quadratic B-spline whose coefficients are the broken line at its Greville points), so that
-    # the surface's normal turns smoothly there as a pressed reducer's knuckles do.
-    a, b = lengths[0] / sum(lengths), (lengths[0] + lengths[1]) / sum(lengths)
+    # The radius: a line between the two sizes, its corners rounded over _REDUCER_KNUCKLE either side (a
+    # quadratic B-spline whose coefficients are the broken line at its Greville points), so that the
+    # surface's normal turns smoothly there as a pressed reducer's knuckles do.  The surface, the envelope
+    # of the spheres, is a cone steeper than that line and ahead of it: the line is placed so that the
+    # cone meets the two sizes where the reducer's ends are.
+    from .piping import surface_ramp
+
+    ends = np.array([lengths[0], lengths[0] + lengths[1]])
+    ramp = ends.copy()
+    for _ in range(100):
+        ramp += ends - surface_ramp(r4, r2, *ramp)
+    a, b = ramp / sum(lengths)
     k = _REDUCER_KNUCKLE / sum(lengths)
     knots = np.array([0.0, 0.0, 0.0, a - k, a + k, b - k, b + k, 1.0, 1.0, 1.0])
     branches.append(SyntheticBranch(spine, BSpline(knots, np.array([r4, r4, r4, (r4 + r2) / 2, r2, r2, r2]), 2)))
