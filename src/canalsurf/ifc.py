@@ -55,6 +55,7 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from .errors import InputError
+from .piping import Piece
 from .io import PathLike, _as_path, _import_extra, atomic_write
 
 __all__ = ["write_ifc", "ifc_knots", "arc_chain", "LENGTH_UNITS", "FAR_FROM_ORIGIN_EXTENTS", "FACE_SAG", "ARC_TOL",
@@ -125,29 +126,8 @@ DEFAULT_NAME = "canalsurf network"
 UNKNOWN_CRS = "UNKNOWN"
 
 
-@dataclass(frozen=True)
-class _Piece:
-    """A piece of the piping decomposition, checked and with its points as float arrays."""
-
-    id: int
-    type: str
-    branch: int | None
-    branches: tuple
-    start: np.ndarray
-    end: np.ndarray
-    outside_diameter: float
-    end_diameter: float
-    length: float
-    bend_radius: float | None
-    angle: float | None
-    centre: np.ndarray | None
-    nominal: str | None
-    catalogue_diameter: float | None
-    extra: dict
-
-
 #: Fields a piece may have beyond the interface (canalsurf.piping.Piece has them), written to its property
-#: set when present: field -> (property, IFC measure type).
+#: set when given: field -> (property, IFC measure type).
 _OPTIONAL_FIELDS = {
     "end_nominal": ("EndNominalSize", "IfcLabel"),
     "end_catalogue_diameter": ("EndCatalogueOuterDiameter", "IfcPositiveLengthMeasure"),
@@ -311,8 +291,9 @@ def _point(value, what: str, *, optional: bool = False) -> np.ndarray | None:
     return arr
 
 
-def _as_pieces(pieces) -> list[_Piece]:
-    """Each piece's fields, checked: a one-line InputError names the piece and the field at fault."""
+def _as_pieces(pieces) -> list[Piece]:
+    """Each piece's fields, checked, as a :class:`~canalsurf.piping.Piece` with its points as float arrays:
+    a one-line InputError names the piece and the field at fault."""
     if isinstance(pieces, (str, bytes)) or not hasattr(pieces, "__iter__"):
         raise InputError(f"pieces must be a sequence of pieces (canalsurf.piping), got {type(pieces).__name__}")
     checked = []
@@ -328,7 +309,7 @@ def _as_pieces(pieces) -> list[_Piece]:
         branch_ids = tuple(_whole(b, f"{label} branches") for b in (branch_ids or ()))
         outside = _number(get("outside_diameter"), f"{label} outside_diameter")
         end_diameter = _number(get("end_diameter"), f"{label} end_diameter", optional=True) or outside
-        item = _Piece(
+        item = Piece(
             id=_whole(get("id"), f"{label} id"), type=kind,
             branch=_whole(get("branch"), f"{label} branch", optional=True), branches=branch_ids,
             start=_point(get("start"), f"{label} start"), end=_point(get("end"), f"{label} end"),
@@ -339,14 +320,14 @@ def _as_pieces(pieces) -> list[_Piece]:
             centre=_point(get("centre"), f"{label} centre", optional=True),
             nominal=None if get("nominal") is None else str(get("nominal")),
             catalogue_diameter=_number(get("catalogue_diameter"), f"{label} catalogue_diameter", optional=True),
-            extra={key: _optional(getattr(piece, key, None), f"{label} {key}", kind)
-                   for key, (_, kind) in _OPTIONAL_FIELDS.items() if getattr(piece, key, None) is not None})
+            **{key: _optional(getattr(piece, key, None), f"{label} {key}", kind)
+               for key, (_, kind) in _OPTIONAL_FIELDS.items() if getattr(piece, key, None) is not None})
         _check_shape(item, label)
         checked.append(item)
     return checked
 
 
-def _check_shape(piece: _Piece, label: str) -> None:
+def _check_shape(piece: Piece, label: str) -> None:
     """Refuse a piece whose points do not describe its shape (an IFC file would hold a broken solid)."""
     span = float(np.linalg.norm(piece.end - piece.start))
     if piece.type in ("straight", "reducer") and span == 0:
@@ -371,7 +352,7 @@ def _check_shape(piece: _Piece, label: str) -> None:
 # placement
 
 
-def _all_points(branches: list, junctions: list, pieces: list[_Piece]) -> np.ndarray:
+def _all_points(branches: list, junctions: list, pieces: list[Piece]) -> np.ndarray:
     """Every point the file will hold (control points, spine samples, junctions, pieces), for the extent."""
     parts = []
     for b in branches:
@@ -788,7 +769,7 @@ def _add_junction(ifc: _Ifc, junction, branches: list, segments: dict, origin: n
 # pieces
 
 
-def _add_piece(ifc: _Ifc, piece: _Piece, branches: list, junctions: list, origin: np.ndarray) -> None:
+def _add_piece(ifc: _Ifc, piece: Piece, branches: list, junctions: list, origin: np.ndarray) -> None:
     """One element per piece (see the module docstring), with its sizes as properties."""
     f = ifc.file
     start, end = piece.start - origin, piece.end - origin
@@ -823,7 +804,8 @@ def _add_piece(ifc: _Ifc, piece: _Piece, branches: list, junctions: list, origin
         "Length": ("IfcLengthMeasure", piece.length),
         "NominalSize": ("IfcLabel", piece.nominal),
         "CatalogueOuterDiameter": ("IfcPositiveLengthMeasure", piece.catalogue_diameter),
-        **{_OPTIONAL_FIELDS[key][0]: (_OPTIONAL_FIELDS[key][1], value) for key, value in piece.extra.items()}})
+        **{name: (kind, getattr(piece, key)) for key, (name, kind) in _OPTIONAL_FIELDS.items()
+           if getattr(piece, key) is not None}})
 
 
 def _elbow_angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -831,7 +813,7 @@ def _elbow_angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(math.atan2(np.linalg.norm(np.cross(a, b)), float(np.dot(a, b))))
 
 
-def _elbow_turn(piece: _Piece) -> tuple[np.ndarray, float]:
+def _elbow_turn(piece: Piece) -> tuple[np.ndarray, float]:
     """The unit normal of an elbow's plane (the arc turns about it from start to end) and its angle in
     radians: the short way round, unless the piece's own angle says it bends more than 180 degrees."""
     a, b = piece.start - piece.centre, piece.end - piece.centre
@@ -843,7 +825,7 @@ def _elbow_turn(piece: _Piece) -> tuple[np.ndarray, float]:
     return normal, angle
 
 
-def _elbow(f, piece: _Piece, origin: np.ndarray, radius: float):
+def _elbow(f, piece: Piece, origin: np.ndarray, radius: float):
     """A swept disk along the elbow's arc: an IfcCircle about its centre trimmed from start to end."""
     normal, angle = _elbow_turn(piece)
     x_axis = (piece.start - piece.centre) / np.linalg.norm(piece.start - piece.centre)
@@ -873,7 +855,7 @@ def _cone(f, start: np.ndarray, end: np.ndarray, r0: float, r1: float):
                                                end_profile)
 
 
-def _tee_ports(piece: _Piece, branches: list, junctions: list) -> list[tuple[np.ndarray, float]]:
+def _tee_ports(piece: Piece, branches: list, junctions: list) -> list[tuple[np.ndarray, float]]:
     """The ports of a tee: ``(unit direction from its centre, radius)`` each.
 
     The junction at the tee's centre (within its run's radius) gives a port for each end of a branch of
@@ -895,8 +877,8 @@ def _tee_ports(piece: _Piece, branches: list, junctions: list) -> list[tuple[np.
         tangent = np.asarray(by_id[b].spine.derivative(1)(float(e)), dtype=float) * (1.0 if e == 0 else -1.0)
         if b != outlet:
             radius = piece.outside_diameter / 2
-        elif "outlet_diameter" in piece.extra:
-            radius = piece.extra["outlet_diameter"] / 2
+        elif piece.outlet_diameter is not None:
+            radius = piece.outlet_diameter / 2
         else:
             radius = _end_radius(branches, b, e)
         ports.append((tangent, radius))
@@ -914,7 +896,7 @@ def _tee_ports(piece: _Piece, branches: list, junctions: list) -> list[tuple[np.
     return unique
 
 
-def _tee(f, piece: _Piece, branches: list, junctions: list, origin: np.ndarray) -> list:
+def _tee(f, piece: Piece, branches: list, junctions: list, origin: np.ndarray) -> list:
     """A tee's body: a swept disk per port from the centre, out as far as the farther of start and end
     (or, for a tee drawn as a point, the largest port radius), and a sphere of that radius closing the
     joint (inside the run, which it fits)."""
