@@ -2,6 +2,7 @@
 
 Everything here is written independently of ``canalsurf`` (no stage code is reused to build the truth):
 
+* :func:`random_cloud` -- seeded points with unit normals and no shape, for the file formats;
 * :func:`cylinder` -- points on a straight circular cylinder (or an arc of it) with exact outward normals;
 * :func:`envelope` -- points on the canal surface of a given spine and radius at *given* parameters, with
   their exact normals, so a test knows the generating ``t`` of every point;
@@ -125,6 +126,22 @@ def angle_deg(a, b):
     """Unsigned angle between the lines of corresponding unit rows of ``a`` and ``b``, in degrees."""
     dot = np.abs(np.einsum("ij,ij->i", a, b))
     return np.degrees(np.arccos(np.clip(dot, 0.0, 1.0)))
+
+
+def random_cloud(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` seeded points with unit normals, no shape, coordinates of order 10 (so float32 rounding
+    shows): for the file readers and writers."""
+    rng = np.random.default_rng(SEED)
+    points = rng.normal(scale=10.0, size=(n, 3))
+    normals = rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return points, normals
+
+
+@pytest.fixture(name="random_cloud")
+def random_cloud_fixture():
+    """:func:`random_cloud`."""
+    return random_cloud
 
 
 @pytest.fixture(name="cylinder")

@@ -40,13 +40,8 @@ ROOT_REASON = "running as root: file permissions do not stop root from reading o
 
 
 @pytest.fixture
-def cloud():
-    """A seeded cloud with unit normals, coordinates of order 10 so float32 rounding shows."""
-    rng = np.random.default_rng(SEED)
-    points = rng.normal(scale=10.0, size=(N, 3))
-    normals = rng.normal(size=(N, 3))
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    return points, normals
+def cloud(random_cloud):
+    return random_cloud(N)
 
 
 def _f32(a):

@@ -217,6 +217,16 @@ def check_caps(planes, branch: CanalModel) -> None:
         assert area == pytest.approx(math.pi * r**2 * (1 - rho**2), rel=1e-6)
 
 
+def written_open_branch(path, branch: CanalModel, envelope_distance):
+    """Write one open branch to ``path``, read it back and check its lateral face and end caps; its solid."""
+    write_step(path, branch)
+    [solid] = read_solids(path)
+    [lateral], planes = faces_by_type(solid)
+    check_on_surface(lateral_points(lateral), branch, envelope_distance)
+    check_caps(planes, branch)
+    return solid
+
+
 # --- geometry ------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("shape", ["straight", "helix", "elbow"])
@@ -224,12 +234,7 @@ def test_pipe_is_one_solid_on_the_model(tmp_path, shape, envelope_distance):
     spine = {"straight": lambda: straight([1.0, -2.0, 3.0], [11.0, 3.0, -1.0]), "helix": helix,
              "elbow": elbow}[shape]()
     branch = pipe(spine, 1.0)
-    target = tmp_path / "pipe.step"
-    write_step(target, Network([branch]))
-    [solid] = read_solids(target)
-    [lateral], planes = faces_by_type(solid)
-    check_on_surface(lateral_points(lateral), branch, envelope_distance)
-    check_caps(planes, branch)
+    solid = written_open_branch(tmp_path / "pipe.step", branch, envelope_distance)
     assert volume(solid) == pytest.approx(math.pi * length_of(spine), rel=VOLUME_RTOL)
 
 
@@ -245,12 +250,7 @@ def test_canal_radius_one_to_two(tmp_path, envelope_distance):
     length, r0, r1 = 10.0, 1.0, 2.0
     branch = CanalModel("canal", straight([0.0, 0.0, 0.0], [0.0, 0.0, length]), linear_radius(r0, r1),
                         closed=False)
-    target = tmp_path / "canal.step"
-    write_step(target, branch)
-    [solid] = read_solids(target)
-    [lateral], planes = faces_by_type(solid)
-    check_on_surface(lateral_points(lateral), branch, envelope_distance)
-    check_caps(planes, branch)
+    solid = written_open_branch(tmp_path / "canal.step", branch, envelope_distance)
     rho2 = ((r1 - r0) / length) ** 2
     frustum = math.pi * length * (1 - rho2) ** 2 / 3 * (r0**2 + r0 * r1 + r1**2)
     assert volume(solid) == pytest.approx(frustum, rel=VOLUME_RTOL)
@@ -260,12 +260,7 @@ def test_curved_canal(tmp_path, envelope_distance):
     # The elbow with a radius growing from 0.5 to 1: the characteristic circles tilt off the spine's
     # normal planes and shrink; no closed form, so the surface check carries the test.
     branch = CanalModel("canal", elbow(), linear_radius(0.5, 1.0), closed=False)
-    target = tmp_path / "canal.step"
-    write_step(target, branch)
-    [solid] = read_solids(target)
-    [lateral], planes = faces_by_type(solid)
-    check_on_surface(lateral_points(lateral), branch, envelope_distance)
-    check_caps(planes, branch)
+    written_open_branch(tmp_path / "canal.step", branch, envelope_distance)
 
 
 def test_loop_is_a_closed_solid_without_caps(tmp_path, envelope_distance):

@@ -39,13 +39,8 @@ SMALL_CHUNK = 257
 
 
 @pytest.fixture
-def cloud():
-    """A seeded cloud with unit normals, coordinates of order 10."""
-    rng = np.random.default_rng(SEED)
-    points = rng.normal(scale=10.0, size=(N, 3))
-    normals = rng.normal(size=(N, 3))
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    return points, normals
+def cloud(random_cloud):
+    return random_cloud(N)
 
 
 @pytest.fixture
