@@ -518,7 +518,7 @@ def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float, stiff: np.ndarray) ->
     M += 1e-12 * np.trace(M) / len(M) * np.eye(len(M))
     s, V = eigh(Pen, M)  # V^T M V = I, V^T Pen V = diag(s)
     s = np.maximum(s, 0.0)
-    data = np.einsum("ji,jk,ki->i", V, JtWJ, V)  # the diagonal of V^T JtWJ V
+    data = np.sum(V * (JtWJ @ V), axis=0)  # the diagonal of V^T JtWJ V
     best, best_lam = np.inf, floor
     for lam in floor * GCV_GRID:
         shrink = 1.0 / (1.0 + (lam - floor) * s)  # eigenvalues of (M + (lam - floor) Pen)^-1 in V
