@@ -59,8 +59,12 @@ def errors(pieces, truth, free: np.ndarray) -> tuple[dict, bool]:
             continue
         p = min(candidates, key=lambda p: np.linalg.norm(_middle(p) - _middle(t)))
         used.add(p.id)
-        found &= p.nominal == t.nps
         r = t.outside_diameter / 2
+        # the catalogue sizes at the true piece's start and end (a run may come out reversed)
+        sizes = (p.catalogue_diameter, p.end_catalogue_diameter or p.catalogue_diameter)
+        if _ends(t, p)[0] is p.end:
+            sizes = sizes[::-1]
+        found &= bool(np.allclose(sizes, (t.outside_diameter, t.end_diameter)))
 
         def worst(measure, value):
             out[measure] = max(out[measure], abs(float(value)))

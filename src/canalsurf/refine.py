@@ -36,11 +36,6 @@ FOOTPOINT_NEWTON_STEPS = 30
 FOOTPOINT_TOL = 1e-7
 #: Penalty weights tried by generalised cross-validation, relative to the fixed floor SMOOTHING * n / m.
 GCV_GRID = 10.0 ** np.arange(0.0, 6.5, 0.5)
-#: Degrees of freedom count this many times in the cross-validation score: plain GCV (1) often picks
-#: too light a penalty, and follows the noise; 1.4 is the usual remedy (Cummins, Filloon and Nychka,
-#: JASA 2001; Kim and Gu, JRSS B 2004).  On straight pipes it had left the spine 1.8 - 2.6 times as far
-#: from the truth as the best fit of the same spline (benchmarks/oracle.py).
-GCV_DOF_FACTOR = 1.4
 #: Gaps averaged for the local footpoint spacing at an end.
 END_GAPS = 8
 #: ... and a run of END_GAPS gaps more than this many times as long as the runs inside it is stray.
@@ -394,11 +389,9 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             cost = np.minimum(res**2, bound**2).sum()
             gain = 0.0
             system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
-            stiff = _stiffness(system[0], spine, segs, closed)
-            floor = SMOOTHING * inlier.sum() / n_coefficients(segs, closed)
-            lam = _gcv_smoothing(*system, floor=floor, stiff=stiff)
+            lam = _gcv_smoothing(*system, floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
             for damping in LM_DAMPING:
-                new_spine, new_radius = _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping)
+                new_spine, new_radius = _step(system, spine, radius, segs, rsegs, closed, lam, damping)
                 new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed, start=t)
                 new_cost = np.minimum(new_res**2, bound**2).sum()
                 if new_cost < cost:
@@ -503,28 +496,24 @@ def _gram(rows, cols, key, size):
     return out
 
 
-def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float, stiff: np.ndarray) -> float:
-    """Penalty weight minimising modified generalised cross-validation,
-    ``nw RSS / (nw - GCV_DOF_FACTOR tr H)^2``.
+def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float) -> float:
+    """Penalty weight minimising generalised cross-validation, ``nw RSS / (nw - tr H)^2``.
 
     The noise of a scan, not a fixed rule, then decides how much the spine is smoothed: straight,
     well-sampled stretches are averaged over many points while sharp bends keep their shape.  The
     search starts at ``floor``: the straight margins past the ends carry no data, and only the penalty
-    holds them.  ``H`` is the hat matrix of the step actually taken, with its stiffness ``stiff``
-    against sliding along the spine.  One generalised eigendecomposition (Demmler-Reinsch) makes every
-    trial weight cheap.
+    holds them.  One generalised eigendecomposition (Demmler-Reinsch) makes every trial weight cheap.
     """
-    M = JtWJ + floor * Pen + stiff
+    M = JtWJ + floor * Pen
     M += 1e-12 * np.trace(M) / len(M) * np.eye(len(M))
     s, V = eigh(Pen, M)  # V^T M V = I, V^T Pen V = diag(s)
     s = np.maximum(s, 0.0)
-    data = np.sum(V * (JtWJ @ V), axis=0)  # the diagonal of V^T JtWJ V
     best, best_lam = np.inf, floor
     for lam in floor * GCV_GRID:
         shrink = 1.0 / (1.0 + (lam - floor) * s)  # eigenvalues of (M + (lam - floor) Pen)^-1 in V
         step = -V @ (shrink * (V.T @ (g + lam * (Pen @ x))))
         fit_rss = rss + 2 * step @ g + step @ JtWJ @ step
-        dof = GCV_DOF_FACTOR * float(np.sum(shrink * data))  # tr(A^-1 JtWJ)
+        dof = float(np.sum(shrink * (1.0 - floor * s)))  # tr(A^-1 JtWJ), JtWJ = M - floor Pen
         if dof >= nw:
             continue
         gcv = nw * max(fit_rss, 0.0) / (nw - dof) ** 2
@@ -549,27 +538,18 @@ def _tangential(spine: BSpline, m: int, closed: bool, size: int) -> np.ndarray:
     return K
 
 
-def _stiffness(JtWJ: np.ndarray, spine: BSpline, segs: int, closed: bool) -> np.ndarray:
-    """Stiffness of a step against sliding control points along the spine, and a ridge on every
-    coefficient (``TANGENT_STIFFNESS`` and ``RIDGE`` of the mean diagonal of J^T J on the spine's).
-
-    Sliding control points along the spine changes (almost) no distance -- it only re-parameterises
-    the curve, which each pass does anyway -- and the second-difference penalty does not hold a
-    straight stretch's shift or stretch along itself: such steps are stiffened, or rounding moves the
-    spine along itself by radii and the step fails.
-    """
-    m = n_coefficients(segs, closed)
-    size = len(JtWJ)
-    scale = max(float(JtWJ.diagonal()[: 3 * m].mean()), 1e-300)
-    return scale * (TANGENT_STIFFNESS * _tangential(spine, m, closed, size) + RIDGE * np.eye(size))
-
-
-def _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping):
-    """One damped Gauss-Newton step with penalty weight ``lam`` and stiffness ``stiff``
-    (:func:`_stiffness`); returns the new spine and radius."""
+def _step(system, spine, radius, segs, rsegs, closed, lam, damping):
+    """One damped Gauss-Newton step with penalty weight ``lam``; returns the new spine and radius."""
     JtWJ, g, Pen, x, _, _ = system
     m = n_coefficients(segs, closed)
-    A = JtWJ + lam * Pen + damping * np.diag(JtWJ.diagonal()) + stiff
+    # Sliding control points along the spine changes (almost) no distance -- it only re-parameterises
+    # the curve, which each pass does anyway -- and the second-difference penalty does not hold a
+    # straight stretch's shift or stretch along itself: such steps are stiffened, or rounding moves
+    # the spine along itself by radii and the step fails.
+    diag = JtWJ.diagonal()
+    scale = max(float(diag[: 3 * m].mean()), 1e-300)
+    A = JtWJ + lam * Pen + damping * np.diag(diag) + RIDGE * scale * np.eye(len(diag))
+    A += TANGENT_STIFFNESS * scale * _tangential(spine, m, closed, len(diag))
     x_new = x + np.linalg.solve(A, -g - lam * (Pen @ x))
     ctrl = x_new[: 3 * m].reshape(3, m).T
     if closed:
