@@ -62,6 +62,17 @@ def as_points(points, name: str = "points", min_points: int = MIN_POINTS) -> np.
     return arr
 
 
+def as_table(values, name: str) -> np.ndarray:
+    """``values`` as an ``(N, 3)`` float64 array (any values), or :class:`InputError` naming ``name``."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{name} must be a numeric (N, 3) array, got {type(values).__name__}") from None
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{name} must have shape (N, 3), got {arr.shape}")
+    return arr
+
+
 def check_scale(arr: np.ndarray, name: str = "points") -> None:
     """Raise :class:`InputError` unless finite ``(N, 3)`` points suit float64 arithmetic.
 

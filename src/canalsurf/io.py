@@ -58,6 +58,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ._validate import as_table
 from .errors import InputError
 
 __all__ = [
@@ -1841,17 +1842,6 @@ _MESH_WRITERS: dict[str, Callable[[pathlib.Path, np.ndarray, np.ndarray], None]]
 MESH_FORMATS: tuple[str, ...] = tuple(_MESH_WRITERS)
 
 
-def _as_table(values, name: str) -> np.ndarray:
-    """``values`` as an ``(N, 3)`` float64 array, or :class:`InputError` naming ``name``."""
-    try:
-        arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        raise InputError(f"{name} must be a numeric (N, 3) array, got {type(values).__name__}") from None
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise InputError(f"{name} must have shape (N, 3), got {arr.shape}")
-    return arr
-
-
 def write_points(path: PathLike, points: np.ndarray, normals: np.ndarray | None) -> None:
     """Write a point cloud (with optional normals ``nx, ny, nz``) atomically; format by suffix.
 
@@ -1863,9 +1853,9 @@ def write_points(path: PathLike, points: np.ndarray, normals: np.ndarray | None)
     if family is None:
         raise InputError(f"{path}: cannot write points as {path.suffix or '(no suffix)'!r} — "
                          f"use one of {', '.join(POINT_WRITE_FORMATS)}")
-    points = _as_table(points, "points")
+    points = as_table(points, "points")
     if normals is not None:
-        normals = _as_table(normals, "normals")
+        normals = as_table(normals, "normals")
         if normals.shape != points.shape:
             raise InputError(f"normals must have the shape of the points {points.shape}, got {normals.shape}")
     table = points if normals is None else np.column_stack([points, normals])

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ._validate import positive
+from ._validate import as_table, positive
 from .errors import InputError
 
 __all__ = ["crop", "voxel_downsample", "point_spacing", "SPACING_SAMPLE", "SPACING_SEED"]
@@ -46,12 +46,7 @@ MAX_VOXEL_INDEX = 2.0**52
 
 def _as_cloud(points, normals) -> tuple[np.ndarray, np.ndarray | None]:
     """``points`` as a finite ``(N, 3)`` float64 array and ``normals`` (if any) of the same shape."""
-    try:
-        pts = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        raise InputError(f"points must be a numeric (N, 3) array, got {type(points).__name__}") from None
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise InputError(f"points must have shape (N, 3), got {pts.shape}")
+    pts = as_table(points, "points")
     if not np.isfinite(pts).all():
         raise InputError("points contain NaN or inf — remove those rows first")
     if normals is None:
