@@ -122,8 +122,10 @@ MIN_BEND_RADII = 1.0
 #: on the ``piping`` network, seeds 1 - 5); its points do not round it.  Those used lie within this many
 #: tolerances of the tube's surface (stray points and other tubes' points do not) ...
 POINT_BAND_TOLERANCES = 3.0
-#: ... at most this many per run (a seeded subsample: many more than the chain's few dozen unknowns need).
+#: ... at most this many per run (a seeded subsample: many more than the chain's few dozen unknowns need),
+#: taken from at most BOX_POINTS about the run (which bounds the memory of measuring them).
 FIT_POINTS = 20_000
+BOX_POINTS = 200_000
 #: ... and a reducer's cone is measured without this share of its length at either end, where its
 #: knuckles round it.
 KNUCKLE_SHARE = 0.25
@@ -1054,7 +1056,10 @@ def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id:
     if points is not None:
         # The points in a box about the run (which holds its tube), in the run's unit coordinates.
         reach = 2.0 * float(r.max())
-        inside = np.all((points >= pts.min(axis=0) - reach) & (points <= pts.max(axis=0) + reach), axis=1)
+        inside = np.flatnonzero(np.all((points >= pts.min(axis=0) - reach) & (points <= pts.max(axis=0) + reach),
+                                       axis=1))
+        if len(inside) > BOX_POINTS:  # every point is measured against every piece of the run
+            inside = np.sort(np.random.default_rng(0).choice(inside, BOX_POINTS, replace=False))
         cloud = (points[inside] - origin) / scale
         order = np.argsort(along, kind="stable")
         at, radii = along[order], r[order] / scale
