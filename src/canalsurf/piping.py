@@ -1051,8 +1051,12 @@ def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id:
     steps = [surface for _, surface in steps]
     chain = _fit_chain(unit_pts[fitted], _tangents(unit_pts)[fitted], spacing / scale, 1.0, tol / scale,
                        s[-1] / scale, names)
-    along = _project(unit_pts, chain)[1]
-    ramps = [(float(np.interp(a, s, along)), float(np.interp(b, s, along))) for a, b in steps]
+
+    def placed(chain):  # the spine samples projected on a chain, and the reducers' ramps along it
+        dist, along, _ = _project(unit_pts, chain)
+        return dist, along, [(float(np.interp(a, s, along)), float(np.interp(b, s, along))) for a, b in steps]
+
+    dist, along, ramps = placed(chain)
     if points is not None:
         # The points in a box about the run (which holds its tube), in the run's unit coordinates.
         reach = 2.0 * float(r.max())
@@ -1070,10 +1074,9 @@ def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id:
         margin = shortest / scale
         chain = _fit_to_points(chain, cloud, size, [(a - margin, b + margin) for a, b in ramps],
                                unit_pts[fitted], tol / scale)
-        along = _project(unit_pts, chain)[1]
-        ramps = [_ramp_from_points(cloud, chain, (a, b), (size(a - margin), size(b + margin)), margin)
-                 for a, b in ((float(np.interp(a, s, along)), float(np.interp(b, s, along))) for a, b in steps)]
-    dist, along, _ = _project(unit_pts, chain)
+        dist, along, ramps = placed(chain)
+        ramps = [_ramp_from_points(cloud, chain, ramp, (size(ramp[0] - margin), size(ramp[1] + margin)), margin)
+                 for ramp in ramps]
     dist, along = dist * scale, along * scale
     ramps = [(a * scale, b * scale) for a, b in ramps]
     lengths = chain.lengths * scale
