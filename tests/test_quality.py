@@ -89,3 +89,7 @@ def test_fold_finds_a_hairpin_and_a_kink_but_not_a_tube():
     for name in ("elbow", "torus", "tight-helix", "fig16-canal"):
         tube = canalsurf.make_tube(name, n=500, rng=1)
         assert fold(tube.spine, tube.radius, tube.closed) == "", name
+    # The torus's ring (radius 4) round a tube of radius 6 (a fit to a blob of clutter): it passes through
+    # itself, though it bends gently.
+    torus = canalsurf.make_tube("torus", n=500, rng=1)
+    assert "too short" in fold(torus.spine, constant_spline(6.0), True)

@@ -75,6 +75,10 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     r = radius(t)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
     length = s[-1]
+    if closed and length < 2 * np.pi * r.max():
+        # A ring's tube is round about a spine that is itself a circle of at least its radius.
+        return (f"the spine is a loop {length / r.max():.1f} radii long, too short to go round a tube of "
+                "its radius (it passes through itself)")
     checked = np.ones(len(t), bool)
     for point, reach in junctions:
         checked &= np.linalg.norm(pts - point, axis=1) > reach
