@@ -360,6 +360,25 @@ def test_a_gap_of_a_radius_is_no_break(radius, pieces):
     assert sum(b.weights.sum() for b in skel.branches) == len(points)
 
 
+def test_each_scale_is_averaged_and_cut_on_its_own_grid():
+    """A thin set gathered at two scales (a scene's wide and thin tubes): the wide tube's gap of 0.8, within
+    the stray-link cut of its own voxels (0.2) and less than a radius, does not break it, though the
+    thin tube's voxels (0.02) would cut any link of more than 0.12."""
+    rng = np.random.default_rng(SEED)
+    wide = np.vstack([_segment(rng, [0.0, 0.0, 0.0], [5.0, 0.0, 0.0], density=50),
+                      _segment(rng, [5.8, 0.0, 0.0], [10.0, 0.0, 0.0], density=50)])
+    thin = _segment(rng, [0.0, 5.0, 0.0], [3.0, 5.0, 0.0], density=1000)
+    points = np.vstack([wide, thin])
+    radius = np.r_[np.full(len(wide), 1.0), np.full(len(thin), 0.1)]
+    spacing = np.r_[np.full(len(wide), 0.2), np.full(len(thin), 0.02)]
+    skel = skeletonize(points, radius, spacing=spacing)
+    assert len(skel.branches) == 2
+    lengths = sorted(b.length for b in skel.branches)
+    assert lengths[0] == pytest.approx(3.0, abs=0.1) and lengths[1] == pytest.approx(10.0, abs=0.3)
+    # One grid for all, the thin tube's: the wide one falls apart at its gap.
+    assert len(skeletonize(points, radius, spacing=0.02).branches) > 2
+
+
 @pytest.mark.parametrize(("length", "n_points"), [
     (0.8 * SPUR_RADII * RADIUS, None),           # short: pruned however many points it has
     (1.2 * SPUR_RADII * RADIUS, MIN_BRANCH_POINTS // 2),  # long enough, but too few points

@@ -98,10 +98,12 @@ class Skeleton:
     link: float
 
 
-def _spanning_forest(nodes: np.ndarray, spacing: float, node_r: np.ndarray) -> tuple:
-    """Minimum spanning forest of the k-NN graph with long links cut; (symmetric CSR, median link, cut).
+def _spanning_forest(nodes: np.ndarray, spacing: np.ndarray, node_r: np.ndarray) -> tuple:
+    """Minimum spanning forest of the k-NN graph with long links cut; (symmetric CSR, median link, cut
+    per node).
 
-    A link is cut when it is much longer than the typical link and the voxel size (stray points), or
+    A link is cut when it is much longer than the typical link and the voxel size of its nodes (stray
+    points), or
     when it is longer than ``SEPARATE_RADII`` times the sum of its nodes' radii: the spines of two
     tubes that do not meet lie at least that sum apart, while gaps along one tube's thin set (a
     sparse scan of a long, thin tube) are about one radius.
@@ -115,9 +117,9 @@ def _spanning_forest(nodes: np.ndarray, spacing: float, node_r: np.ndarray) -> t
     tree = minimum_spanning_tree(graph.maximum(graph.T)).tocoo()
     link = float(np.median(tree.data))
     # A sparse thin set (a long, thin tube) has gaps of a few voxels that are no break in the curve.
-    cut = max(ORDER_CUT_LINKS * link, ORDER_CUT_SPACINGS * spacing)
+    cut = np.maximum(ORDER_CUT_LINKS * link, ORDER_CUT_SPACINGS * spacing)
     separate = tree.data > SEPARATE_RADII * (node_r[tree.row] + node_r[tree.col])
-    keep = (tree.data <= cut) & ~separate
+    keep = (tree.data <= np.maximum(cut[tree.row], cut[tree.col])) & ~separate
     forest = coo_matrix((tree.data[keep], (tree.row[keep], tree.col[keep])), shape=tree.shape).tocsr()
     return (forest + forest.T).tocsr(), link, cut
 
@@ -201,7 +203,22 @@ def _junction_clusters(tree: _Tree, segments, nodes, node_r) -> dict:
     return {u: index[find(u)] for u in hubs}
 
 
-def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing: float) -> Skeleton:
+def _voxel_average(points: np.ndarray, spacing) -> tuple:
+    """:func:`~canalsurf.thin.voxel_average` on the grid of each point's spacing; also each node's spacing."""
+    spacing = np.broadcast_to(np.asarray(spacing, float), (len(points),))
+    nodes, mass, label, sizes = [np.empty((0, 3))], [np.empty(0, np.int64)], np.empty(len(points), np.int64), [
+        np.empty(0)]
+    for size in np.unique(spacing):
+        mine = np.flatnonzero(spacing == size)
+        centres, counts, lab = voxel_average(points[mine], size)
+        label[mine] = lab + sum(len(c) for c in nodes)
+        nodes.append(centres)
+        mass.append(counts)
+        sizes.append(np.full(len(counts), size))
+    return np.concatenate(nodes), np.concatenate(mass), label, np.concatenate(sizes)
+
+
+def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing) -> Skeleton:
     """The skeleton graph of a thin, curve-like cloud.
 
     Parameters
@@ -211,9 +228,10 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing: float) -> Sk
     radius : ndarray, shape (N,)
         Distance of each thin point's input point from it (the paper's r_i): the local tube radius,
         which sets the length of a spur and of a junction.
-    spacing : float
+    spacing : float or ndarray, shape (N,)
         Voxel size the set is averaged on first: about half the MLS radius H, so a vertex stands for a
-        short piece of curve and noise across the curve is averaged away.
+        short piece of curve and noise across the curve is averaged away.  Per point for a thin set
+        gathered at several scales (each scale is averaged on its own grid).
 
     Returns
     -------
@@ -224,11 +242,11 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing: float) -> Sk
     ReconstructionError
         If no curve is left: the set collapsed to a point, or holds no tree long enough for a tube.
     """
-    nodes, mass, label = voxel_average(points, spacing)
+    nodes, mass, label, node_spacing = _voxel_average(points, spacing)
     if len(nodes) < 4:
         raise ReconstructionError("the shrunk cloud collapsed to a point, not a curve — the input is not a tube")
     node_r = np.bincount(label, radius, len(nodes)) / mass
-    graph, link, cut = _spanning_forest(nodes, spacing, node_r)
+    graph, link, cut = _spanning_forest(nodes, node_spacing, node_r)
     tree = _Tree(graph)
     _prune_spurs(tree, nodes, mass, node_r)
     segments = tree.segments()
@@ -274,7 +292,7 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing: float) -> Sk
         w = weight[sel]
         r = np.where(w > 0, rsum[sel] / np.maximum(w, 1e-300), node_r[path])
         loop = (ja is None and jb is None and len(path) >= MIN_LOOP_LINKS
-                and np.linalg.norm(nodes[path[0]] - nodes[path[-1]]) <= cut)
+                and np.linalg.norm(nodes[path[0]] - nodes[path[-1]]) <= cut[path].max())
         ends = (None, None) if loop else (None if ja is None else renumber[ja],
                                           None if jb is None else renumber[jb])
         branches.append(SkeletonBranch(nodes[path], np.maximum(w, 0.0), r, ends, bool(loop)))
