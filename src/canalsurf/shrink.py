@@ -12,8 +12,8 @@ the other side of the tube, i.e. reached the spine.
 Stopping.  ``stop="paper"`` is the printed rule: stop once the break count reaches ``mu * n``.  As printed
 it can fail to stop (the count may peak below ``mu * n``; with ``mu = 1`` a few points never meet the other
 side).  ``stop="auto"`` (default) adds robust rules: Algorithm 1 also stops when the break count has passed
-its peak and returns the state at the peak; Algorithm 2 also stops after ``PATIENCE`` moves without a newly
-stopped point and drops the points that never stopped.  The result records which rule fired.
+its peak and returns the state at the peak; Algorithm 2 also stops after ``PATIENCE`` moves that stop
+(next to) no new point -- fewer than ``PATIENCE_SHARE`` of them -- and drops the points that never stopped.  The result records which rule fired.
 
 Scans from one side.  Both algorithms need each point to meet one with an opposite normal, i.e. the
 other side of the tube; a scan that saw only part of the circumference may have none.
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import PATIENCE, PEAK_DROP, PEAK_MIN_SHARE
+from .constants import PATIENCE, PATIENCE_SHARE, PEAK_DROP, PEAK_MIN_SHARE
 from .errors import InputError
 
 __all__ = ["ShrinkResult", "shrink", "shrink_by_concentration", "shrink_by_sections", "break_mask"]
@@ -255,7 +255,7 @@ def shrink(points: np.ndarray, normals: np.ndarray, *, R: float, delta: float, m
         if count >= target:
             rule = "mu"
             break
-        quiet = 0 if newly.any() else quiet + 1
+        quiet = 0 if newly.sum() >= PATIENCE_SHARE * n else quiet + 1
         if stop == "auto" and quiet >= PATIENCE and count >= 0.5 * n:
             rule = "patience"
             break
