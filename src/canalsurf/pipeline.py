@@ -11,7 +11,11 @@ from __future__ import annotations
 
 import logging
 import math
+import multiprocessing
+import os
+import signal
 import time
+from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
@@ -29,7 +33,7 @@ from .normals import estimate_normals, on_planes, point_inward
 from .quality import branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, prefer_canal, principal_curvature
 from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
-from .shrink import shrink, shrink_by_concentration, shrink_by_sections
+from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
 from .spine import arclength_reparametrize, constant_spline, curve_length, pspline_fit
 
@@ -88,7 +92,7 @@ class _Timer(dict):
             self.progress(stage)
         start = time.perf_counter()
         yield
-        self[stage] = round(time.perf_counter() - start, 4)
+        self[stage] = round(self.get(stage, 0.0) + time.perf_counter() - start, 4)
 
 
 @dataclass
@@ -102,7 +106,6 @@ class _Scan:
     draw: np.ndarray | None      # seeded permutation for large scans
     pts: np.ndarray              # the paper's stages' subset
     normals: np.ndarray | None
-    fit_pts: np.ndarray          # the final fit's subset (a superset of pts' draw)
 
 
 @dataclass
@@ -197,16 +200,96 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     scan = _prepare(points, normals, k)
     with timer("normals"):
         quantum = quantisation_noise(scan.all_pts)
+    given = {"R": R, "delta": delta, "mu": mu, "tau": tau, "H": H}
+    first = _resolved(scan, k, given, kind=kind, stop=stop, neighbours=neighbours, quantum=quantum,
+                      timer=timer, fallback=True, densify=stop == "auto" and R is None and H is None)
+    passes = [first]
+    if stop == "auto" and R is None and delta is None and H is None:
+        passes += _finer_scales(scan, first, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
+                                timer=timer)
+    with timer("skeleton"):
+        skel = skeletonize(np.concatenate([s.thin for s in passes]), np.concatenate([s.r_i for s in passes]),
+                           spacing=np.concatenate([np.full(len(s.thin), C.ORDER_VOXEL_PER_H * s.p["H"])
+                                                   for s in passes]))
+    noise = max(s.noise for s in passes)
+    fit_pts, support = _fit_points(scan, passes, len(skel.branches))
+    with timer("fit"):
+        skel, fits = _fit_network(fit_pts, skel, kind=kind, refine=refine, noise=noise, quantum=quantum,
+                                  **support)
+    with timer("junctions"):
+        fits, junction_points = _join_at_junctions(fits, skel)
+    with timer("residual"):
+        branches, summary = _check_and_describe(scan, fits, noise, junction_points)
+    network = _to_input_units(branches, junction_points, fits, scan)
+    network.parameters = _reported_parameters(first.p, scan.scale, k=k, r0=first.r0, stop=stop,
+                                              neighbours=neighbours, refine=refine)
+    sr = first.sr
+    network.diagnostics = {
+        "n_points": len(scan.all_pts), "n_shrink_points": sum(len(s.scan.pts) for s in passes),
+        "n_fit_points": len(fit_pts),
+        "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]), "stop_rule": sr.stop_rule,
+        "points_reached_spine": sum(len(s.thin) for s in passes),
+        "eq6_radius": float(first.r_i.mean()) * scan.scale,
+        "scale_radii": [s.r0 * scan.scale for s in passes],
+        "n_branches": len(network.branches),
+        "n_junctions": len(network.junctions), "n_components": len(network.components),
+        **{key: (val * scan.scale if key in ("rms_residual", "inlier_rms_residual", "noise_sigma", "scan_noise")
+                 and val is not None else val)
+           for key, val in summary.items()},
+        "seconds": dict(timer),
+    }
+    network.stages = {"normals": first.nrm,
+                      "shrunk": np.concatenate([s.sr.points[s.kept] for s in passes]) * scan.scale + scan.origin,
+                      "thin": np.concatenate([s.thin for s in passes]) * scan.scale + scan.origin,
+                      "break_counts": sr.break_counts}
+    return network
+
+
+# --------------------------------------------------------------------------------------------------
+# the paper's stages, at one scale or several
+
+
+@dataclass
+class _Pass:
+    """The paper's stages (normals, shrinking, thinning) run on one subset of the scan at one scale.
+
+    ``scan`` holds the points of the pass (``scan.pts`` its subset); ``curved`` indexes the subset's
+    points that may shrink, ``kappa`` their larger principal curvature, ``noise`` the scan's own noise
+    there; ``thin`` and ``r_i`` are the thin set and the distance of each of its points' input point
+    (of ``scan.pts[curved[kept]]``).
+    """
+
+    scan: _Scan
+    nrm: np.ndarray
+    r0: float
+    p: dict
+    curved: np.ndarray
+    kappa: np.ndarray
+    noise: float
+    sr: ShrinkResult
+    kept: np.ndarray
+    thin: np.ndarray
+    r_i: np.ndarray
+    pool: np.ndarray | None = None  # indices of the scan's points the pass worked on (None: all)
+
+
+def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbours: str, quantum: float,
+                  timer: _Timer, fallback: bool) -> _Pass:
+    """Normals, parameters, shrinking and thinning of ``scan``'s subset.
+
+    With ``fallback``, normals that cannot be trusted (coordinates quantised to steps near the radius)
+    give way to cross-sections of the points themselves.
+    """
+    algo = "pipe" if kind == "pipe" else "canal"
+    with timer("normals"):
         scan, nrm, r0, area_per_point, curved, noise, kappa = _normals(scan, k, flat_out=stop == "auto",
                                                                        quantum=quantum)
-    algo = "pipe" if kind == "pipe" else "canal"
-    p = _parameters(r0, area_per_point, scan.scale, R=R, delta=delta, mu=mu, tau=tau, H=H, algo=algo,
-                    stop=stop)
+    p = _parameters(r0, area_per_point, scan.scale, algo=algo, stop=stop, **given)
     with timer("shrink"):
         try:
             sr, kept = _shrink(scan.pts[curved], nrm[curved], p, r0, algo=algo, stop=stop, neighbours=neighbours)
         except ReconstructionError:
-            if stop != "auto":
+            if stop != "auto" or not fallback:
                 raise
             # The normals could not be trusted (coordinates quantised to steps near the radius):
             # cross-sections of the points themselves find the axes.
@@ -217,40 +300,134 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
             if not 0 < r0 < np.inf:
                 raise
             curved = np.flatnonzero(tube & (sr.distance < C.MAX_SHRINK_PER_RADIUS * r0))
-            p = _parameters(r0, area_per_point, scan.scale, R=R, delta=delta, mu=mu, tau=tau, H=H, algo=algo,
-                            stop=stop)
+            p = _parameters(r0, area_per_point, scan.scale, algo=algo, stop=stop, **given)
             sr = replace(sr, points=sr.points[curved], distance=sr.distance[curved])
             kept = np.arange(len(curved))
     with timer("thin"):
-        shrunk = sr.points[kept]
-        thin = _thin(shrunk, p["H"])
+        thin = _thin(sr.points[kept], p["H"])
         r_i = np.linalg.norm(scan.pts[curved[kept]] - thin, axis=1)
-    with timer("skeleton"):
-        skel = skeletonize(thin, r_i, spacing=C.ORDER_VOXEL_PER_H * p["H"])
-    with timer("fit"):
-        skel, fits = _fit_network(scan.fit_pts, skel, kind=kind, refine=refine, noise=noise, quantum=quantum,
-                                  **_fit_support(scan, curved, kappa))
-    with timer("junctions"):
-        fits, junction_points = _join_at_junctions(fits, skel)
-    with timer("residual"):
-        branches, summary = _check_and_describe(scan, fits, noise, junction_points)
-    network = _to_input_units(branches, junction_points, fits, scan)
-    network.parameters = _reported_parameters(p, scan.scale, k=k, r0=r0, stop=stop, neighbours=neighbours,
-                                              refine=refine)
-    network.diagnostics = {
-        "n_points": len(scan.all_pts), "n_shrink_points": len(scan.pts), "n_fit_points": len(scan.fit_pts),
-        "iterations": sr.iterations, "break_count": int(sr.break_counts[-1]), "stop_rule": sr.stop_rule,
-        "points_reached_spine": int(len(kept)), "eq6_radius": float(r_i.mean()) * scan.scale,
-        "n_branches": len(network.branches),
-        "n_junctions": len(network.junctions), "n_components": len(network.components),
-        **{key: (val * scan.scale if key in ("rms_residual", "inlier_rms_residual", "noise_sigma", "scan_noise")
-                 and val is not None else val)
-           for key, val in summary.items()},
-        "seconds": dict(timer),
-    }
-    network.stages = {"normals": nrm, "shrunk": shrunk * scan.scale + scan.origin,
-                      "thin": thin * scan.scale + scan.origin, "break_counts": sr.break_counts}
-    return network
+    return _Pass(scan, nrm, r0, p, curved, kappa, noise, sr, kept, thin, r_i)
+
+
+#: After the paper's stages, a point of the scan is explained when it lies within this many of the local
+#: radius of the skeleton found (inside the tube, or on its surface with a quarter radius to spare).
+EXPLAINED_RADII = 1.25
+#: Further passes at finer scales, at most (a plant's pipes span radii of 1 - 30 cm: each pass takes the
+#: median radius of what is left, about halving it).
+MAX_SCALE_PASSES = 4
+#: A further pass is kept only if the median radius of what it works on is at most this share of the
+#: previous pass's: else the points left are clutter, or tubes the previous scale already served.
+FINER_SCALE = 0.75
+#: A further pass runs only on at least this many unexplained points, and this share of the scan.
+MIN_PASS_POINTS = C.MAX_SHRINK_POINTS
+MIN_PASS_SHARE = 0.02
+
+
+#: A pass whose skeleton explains less than this share of the subset's curved points saw the scan too
+#: sparsely (a scene of many tubes spreads a subset thinly over each): it runs again on a subset
+#: DENSIFY times as large, up to MAX_STAGE_POINTS.  Each tube's points are explained once it is resolved.
+MIN_EXPLAINED_SHARE = 0.5
+DENSIFY = 4
+MAX_STAGE_POINTS = 320_000
+
+
+def _subset(scan: _Scan, n: int) -> _Scan:
+    """``scan`` with its stages' subset the first ``n`` points of its draw (all, if it has no draw)."""
+    if scan.draw is None:
+        return replace(scan, pts=scan.all_pts, normals=scan.all_normals)
+    pick = np.sort(scan.draw[:n])
+    return replace(scan, pts=scan.all_pts[pick], normals=None if scan.all_normals is None else scan.all_normals[pick])
+
+
+def _resolved(scan: _Scan, k, given: dict, *, densify: bool, **options) -> _Pass:
+    """:func:`_paper_stages` on ``scan``'s subset, and with ``densify`` on denser subsets until its
+    skeleton explains MIN_EXPLAINED_SHARE of the curved points (or no more points may be drawn).
+
+    A subset too sparse for the tubes reads every neighbourhood as wider than they are: the curvature
+    radius r0 follows the neighbourhoods' size, not the tubes', and the parameters derived from it
+    shrink the points to nothing that explains them.
+    """
+    while True:
+        most = min(len(scan.all_pts), MAX_STAGE_POINTS)
+        last = not densify or scan.draw is None or len(scan.pts) >= most
+        try:
+            run = _paper_stages(scan, k, given, **options)
+        except ReconstructionError:
+            if last:
+                raise
+        else:
+            if last:
+                return run
+            share = _explained_share(run)
+            if share >= MIN_EXPLAINED_SHARE:
+                return run
+            log.info("the skeleton explains %.0f%% of the %d curved points of the subset: drawing it denser",
+                     100 * share, len(run.curved))
+            scan = run.scan  # with the subset _normals may have grown
+        scan = _subset(scan, min(DENSIFY * len(scan.pts), most))
+
+
+def _explained_share(run: _Pass) -> float:
+    """The share of the pass's curved subset points its skeleton explains (:func:`_explained`)."""
+    return float(_explained(run.scan.pts[run.curved], run).mean()) if len(run.curved) else 0.0
+
+
+def _explained(points: np.ndarray, run: _Pass) -> np.ndarray:
+    """Which ``points`` lie in or on a tube of the pass's skeleton (within EXPLAINED_RADII of its radius)."""
+    try:
+        skel = skeletonize(run.thin, run.r_i, spacing=C.ORDER_VOXEL_PER_H * run.p["H"])
+    except ReconstructionError:
+        return np.zeros(len(points), bool)
+    nodes = np.concatenate([b.points for b in skel.branches])
+    node_r = np.concatenate([b.radius for b in skel.branches])
+    d, i = cKDTree(nodes).query(points, workers=-1)
+    return d < EXPLAINED_RADII * node_r[i]
+
+
+def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neighbours: str, quantum: float,
+                  timer: _Timer) -> list:
+    """Further passes of the paper's stages on the points no earlier pass explained.
+
+    One scale cannot serve a scene of tubes of very different radii: the subset and the parameters
+    (R, delta, H) follow the first radius estimate r0, the median over the scene, and a tube a few
+    times thinner is too sparse there for its normals to curve (it reads as flat) or shrinks with a
+    step that overshoots its spine.  What the first pass left unexplained is drawn again, as densely
+    relative to its own median radius, and run again, until too little is left or nothing more is
+    found.  The work grows with the tubes found, not with the points.
+    """
+    runs = []
+    left = np.ones(len(scan.all_pts), bool)
+    run, coarser = first, first.r0
+    for _ in range(MAX_SCALE_PASSES - 1):
+        with timer("normals"):
+            left[left] = ~_explained(scan.all_pts[left], run)
+        if left.sum() < max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left)):
+            break
+        pool = np.flatnonzero(left)
+        local = np.cumsum(left) - 1  # index in the pool of each point of it
+        draw = local[scan.draw[left[scan.draw]]]
+        # DENSIFY times as densely as the last pass drew from its points: what it left is what it saw
+        # too sparsely, tubes about half as thin (or clutter).
+        n = DENSIFY * len(run.scan.pts) / len(run.scan.all_pts) * len(pool)
+        sub = _subset(_Scan(scan.origin, scan.scale, scan.all_pts[pool],
+                            None if scan.all_normals is None else scan.all_normals[pool], draw, None, None),
+                      int(min(max(n, C.MAX_SHRINK_POINTS), MAX_STAGE_POINTS)))
+        try:
+            run = _paper_stages(sub, k, given, kind=kind, stop="auto", neighbours=neighbours, quantum=quantum,
+                                timer=timer, fallback=False)
+        except ReconstructionError as exc:
+            log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
+            break
+        if run.r0 > FINER_SCALE * coarser or _explained_share(run) < MIN_EXPLAINED_SHARE:
+            log.info("the %d points left unexplained hold no finer tubes (r0 = %.4g): no further pass", len(pool),
+                     run.r0 * scan.scale)
+            break
+        log.info("a finer pass on %d points left unexplained: r0 = %.4g, %d thin points",
+                 len(pool), run.r0 * scan.scale, len(run.thin))
+        run.pool = pool
+        runs.append(run)
+        coarser = run.r0
+    return runs
 
 
 # --------------------------------------------------------------------------------------------------
@@ -276,10 +453,9 @@ def _prepare(points, normals, k) -> _Scan:
     # MAX_FIT_POINTS, a superset from the same draw.
     draw = np.random.default_rng(0).permutation(len(pts)) if len(pts) > C.MAX_SHRINK_POINTS else None
     if draw is None:
-        return _Scan(origin, scale, pts, given, None, pts, given, pts)
+        return _Scan(origin, scale, pts, given, None, pts, given)
     pick = np.sort(draw[: C.MAX_SHRINK_POINTS])
-    return _Scan(origin, scale, pts, given, draw, pts[pick], None if given is None else given[pick],
-                 pts[np.sort(draw[: C.MAX_FIT_POINTS])])
+    return _Scan(origin, scale, pts, given, draw, pts[pick], None if given is None else given[pick])
 
 
 def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0):
@@ -318,7 +494,7 @@ def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0):
             break
         pick = np.sort(scan.draw[:grown])
         scan = _Scan(scan.origin, scan.scale, scan.all_pts, scan.all_normals, scan.draw, scan.all_pts[pick],
-                     None if scan.all_normals is None else scan.all_normals[pick], scan.fit_pts)
+                     None if scan.all_normals is None else scan.all_normals[pick])
     if not np.isfinite(r0) or r0 > 10:
         raise ReconstructionError("the surface is flat (no curvature around a spine) — "
                                   "the input is not a tube")
@@ -464,20 +640,82 @@ def _first_guess(branch: SkeletonBranch) -> dict:
             "u": u, "r_v": branch.radius, "w": w}
 
 
-def _fit_support(scan: _Scan, curved: np.ndarray, kappa: np.ndarray) -> dict:
-    """For each point of the final fit: whether the surface is curved like a tube there, and its
-    larger principal curvature (those of its nearest point of the stages' subset)."""
-    mask = np.zeros(len(scan.pts), bool)
-    mask[curved] = True
-    if scan.fit_pts is scan.pts:
-        return {"curved": mask, "kappa": kappa}
-    nearest = cKDTree(scan.pts).query(scan.fit_pts, workers=-1)[1]
-    return {"curved": mask[nearest], "kappa": kappa[nearest]}
+#: The final fit takes at least MAX_FIT_POINTS of the scan's points, and this many per branch of the
+#: skeleton: a scene of hundreds of tubes needs more than a single tube, and no fewer per tube.
+FIT_POINTS_PER_BRANCH = 4_000
 
 
-def _assign(points: np.ndarray, guesses: list, junctions: np.ndarray, skel: Skeleton,
-            curved: np.ndarray) -> list:
-    """Indices of the points each branch is fitted to.
+def _fit_points(scan: _Scan, passes: list, n_branches: int) -> tuple[np.ndarray, dict]:
+    """The points of the final fit (a seeded subset of a large scan: more for more branches) and, for each,
+    whether the surface is curved like a tube there and its larger principal curvature -- those of its
+    nearest point in the subset of the finest pass that worked on it."""
+    if scan.draw is None:
+        index = np.arange(len(scan.all_pts))
+    else:
+        index = np.sort(scan.draw[: max(C.MAX_FIT_POINTS, FIT_POINTS_PER_BRANCH * n_branches)])
+    points = scan.all_pts[index]
+    level = np.zeros(len(index), int)
+    for j, run in enumerate(passes[1:], 1):
+        level[np.isin(index, run.pool)] = j
+    curved, kappa = np.zeros(len(index), bool), np.zeros(len(index))
+    for j, run in enumerate(passes):
+        mine = level == j
+        mask = np.zeros(len(run.scan.pts), bool)
+        mask[run.curved] = True
+        if run.scan.pts is scan.all_pts and mine.all():
+            curved, kappa = mask[index], run.kappa[index]
+            break
+        nearest = cKDTree(run.scan.pts).query(points[mine], workers=-1)[1]
+        curved[mine], kappa[mine] = mask[nearest], run.kappa[nearest]
+    return points, {"curved": curved, "kappa": kappa}
+
+
+def _stand_in(g: dict, branch: SkeletonBranch, i: int) -> CanalModel:
+    """A first tube estimate as a model, continued ``ASSIGN_END_RADII`` radii past its open ends."""
+    spine, radius = g["spine"], g["radius"]
+    if not g["closed"]:
+        ext = ASSIGN_END_RADII * g["eq6"] / curve_length(spine)
+        a, b = (0.0 if branch.ends[0] is not None else -ext), (1.0 if branch.ends[1] is not None else 1 + ext)
+        nseg, rseg = g["segments"]
+        spine, (radius,), _ = arclength_reparametrize(extended(spine), n_segments=nseg + 2, closed=False,
+                                                      a=a, b=b, extra=[(extended(radius), rseg + 2)])
+    return CanalModel("canal", spine, radius, g["closed"], id=i)
+
+
+class _Estimates:
+    """The branches' first tube estimates (``guesses``), each as a :func:`_stand_in` with the box its
+    assign band reaches, made once per estimate; and how far round each junction points go to no branch."""
+
+    def __init__(self, guesses: list, skel: Skeleton):
+        self.guesses, self.skel, self._made = list(guesses), skel, {}
+        largest = np.zeros(len(skel.junctions))
+        for g, b in zip(guesses, skel.branches):
+            for j in b.ends:
+                if j is not None:
+                    largest[j] = max(largest[j], g["eq6"])
+        self.junction_reach = JUNCTION_EXCLUSION_RADII * largest
+
+    def replaced(self, i: int, guess: dict) -> _Estimates:
+        """These estimates with branch ``i``'s replaced (the others' models are kept)."""
+        out = _Estimates.__new__(_Estimates)
+        out.guesses, out.skel, out.junction_reach = list(self.guesses), self.skel, self.junction_reach
+        out.guesses[i] = guess
+        out._made = {j: made for j, made in self._made.items() if j != i}
+        return out
+
+    def model(self, i: int) -> tuple[CanalModel, np.ndarray]:
+        """Branch ``i``'s stand-in and the corners (2, 3) of a box holding it and its assign band."""
+        if i not in self._made:
+            g = self.guesses[i]
+            model = _stand_in(g, self.skel.branches[i], i)
+            pts = model.spine(np.linspace(0.0, 1.0, 64 * (len(model.spine.t) - 2 * model.spine.k)))
+            reach = float(model.radius(np.linspace(0.0, 1.0, 64)).max()) + ASSIGN_RADII * g["eq6"]
+            self._made[i] = (model, np.array([pts.min(axis=0) - reach, pts.max(axis=0) + reach]))
+        return self._made[i]
+
+
+def _assign(points: np.ndarray, estimates: _Estimates, curved: np.ndarray, only: int | None = None) -> list:
+    """Indices of the points each branch is fitted to (of branch ``only`` alone, if given).
 
     Each point goes to the branch whose first tube estimate -- continued straight for
     ``ASSIGN_END_RADII`` radii past its open ends, which the thin set may fall short of -- it lies
@@ -485,25 +723,27 @@ def _assign(points: np.ndarray, guesses: list, junctions: np.ndarray, skel: Skel
     (their surface belongs to several tubes).  Clutter (a floor under a pipe, a box beside it) is
     then no part of any fit, however much of the scan it is; nor is a point where the surface is
     flat (``curved`` False): ground beside a pipe that lies near it would otherwise pull a one-sided
-    fit towards a larger radius.
+    fit towards a larger radius.  For one branch only the points and estimates near it are looked at,
+    so that the cost does not grow with the size of the scene.
     """
-    stand_in = []
-    for i, (g, branch) in enumerate(zip(guesses, skel.branches)):
-        spine, radius = g["spine"], g["radius"]
-        if not g["closed"]:
-            ext = ASSIGN_END_RADII * g["eq6"] / curve_length(spine)
-            a, b = (0.0 if branch.ends[0] is not None else -ext), (1.0 if branch.ends[1] is not None else 1 + ext)
-            nseg, rseg = g["segments"]
-            spine, (radius,), _ = arclength_reparametrize(extended(spine), n_segments=nseg + 2, closed=False,
-                                                          a=a, b=b, extra=[(extended(radius), rseg + 2)])
-        stand_in.append(CanalModel("canal", spine, radius, g["closed"], id=i))
-    label, _ = classify_points(points, stand_in, cut=[ASSIGN_RADII * g["eq6"] for g in guesses])
-    near_junction = np.zeros(len(points), bool)
-    for j, point in enumerate(junctions):
-        largest = max(g["eq6"] for g, b in zip(guesses, skel.branches) if j in b.ends)
-        near_junction |= np.linalg.norm(points - point, axis=1) < JUNCTION_EXCLUSION_RADII * largest
-    keep = curved & ~near_junction
-    return [np.flatnonzero((label == i) & keep) for i in range(len(guesses))]
+    guesses, junctions = estimates.guesses, estimates.skel.junctions
+    index = np.arange(len(guesses))
+    near = np.arange(len(points))
+    if only is not None:
+        # The points in the box of this branch's band, and the branches whose bands reach into it.
+        mine = estimates.model(only)[1]
+        boxes = np.array([estimates.model(i)[1] for i in index])
+        index = np.flatnonzero(np.all((boxes[:, 0] <= mine[1]) & (boxes[:, 1] >= mine[0]), axis=1))
+        near = np.flatnonzero(np.all((points >= mine[0]) & (points <= mine[1]), axis=1))
+    label, _ = classify_points(points[near], [estimates.model(i)[0] for i in index],
+                               cut=[ASSIGN_RADII * guesses[i]["eq6"] for i in index])
+    keep = curved[near].copy()
+    if len(junctions) and len(near):
+        for hits in cKDTree(points[near]).query_ball_point(junctions, estimates.junction_reach):
+            keep[hits] = False
+    if only is not None:
+        return near[(label == only) & keep]
+    return [near[(label == i) & keep] for i in range(len(guesses))]
 
 
 def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> _BranchFit:
@@ -590,27 +830,83 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     return True, ""
 
 
-def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, guesses: list, skel: Skeleton,
+def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimates: _Estimates,
           curved: np.ndarray, kind: str) -> tuple[_BranchFit, np.ndarray]:
     """Branch ``i``'s fit and the indices of its points (``idx``), grown where an open end grew towards
     the edge of its points: the points are assigned again about the fit (continued ASSIGN_END_RADII past
     its ends, like the first estimate) and the branch fitted again, until no end grows by more than
     ``GROW_RADII`` or ``MAX_GROW_ROUNDS``.  The refinement's own end placement stops it at a gap in the
     points, as before."""
-    guesses = list(guesses)
-    free = [e for e in (0, 1) if skel.branches[i].ends[e] is None and not guesses[i]["closed"]]
+    free = [e for e in (0, 1) if estimates.skel.branches[i].ends[e] is None and not estimates.guesses[i]["closed"]]
     for _ in range(MAX_GROW_ROUNDS):
-        g = guesses[i]
+        g = estimates.guesses[i]
         tangent = g["spine"].derivative()(np.array([0.0, 1.0]))
         outward = tangent / np.linalg.norm(tangent, axis=1, keepdims=True) * np.array([[-1.0], [1.0]])
         if not any((fit.spine(float(e)) - g["spine"](float(e))) @ outward[e] > GROW_RADII * g["eq6"] for e in free):
             break
         length, grown = curve_length(g["spine"]), curve_length(fit.spine)
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
-        guesses[i] = {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)}
-        idx = _assign(points, guesses, skel.junctions, skel, curved)[i]
-        fit = _fit_branch(points[idx], guesses[i], kind=kind, refine=True)
+        estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
+        idx = _assign(points, estimates, curved, only=i)
+        fit = _fit_branch(points[idx], estimates.guesses[i], kind=kind, refine=True)
     return fit, idx
+
+
+def _fit_one(i: int, idx: np.ndarray, job: dict) -> _BranchFit | str:
+    """Branch ``i`` fitted to its points ``idx`` (grown at its open ends) and checked; or why it is no tube.
+
+    ``job`` holds what every branch's fit shares (see :func:`_fit_network`).
+    """
+    points, estimates = job["points"], job["estimates"]
+    if len(idx) < C.POINTS_PER_SEGMENT:
+        return f"only {len(idx)} points lie near the first estimate of a tube"
+    try:
+        fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=job["refine"])
+        if job["refine"]:
+            fit, idx = _grow(points, fit, idx, i, estimates, job["curved"], job["kind"])
+    except ReconstructionError as exc:
+        if len(estimates.guesses) == 1:
+            raise
+        return str(exc).split(" — ")[0]
+    fit.kappa = job["kappa"][idx]
+    ok, why = _is_tube(_quality(fit), job["noise"], job["quantum"])
+    return fit if ok else why
+
+
+#: Branches fitted at once before the fits are spread over the machine's cores (fewer: one process).
+PARALLEL_BRANCHES = 8
+_JOB: dict = {}
+
+
+def _fit_in_worker(task: tuple) -> _BranchFit | str:
+    return _fit_one(*task, _JOB)
+
+
+def _quiet_worker() -> None:
+    # Ctrl-C is the parent's to handle (it cleans up and exits; the workers then find their queue closed).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
+
+
+def _fit_all(tasks: list, job: dict) -> list:
+    """:func:`_fit_one` of every (branch, points) task; over the cores in forked processes (Linux) when
+    there are many, so that a scene's hundreds of branches take a share of the time.  Each fit depends
+    on its task alone, so the results are the same either way."""
+    cores = _cores()
+    if len(tasks) < PARALLEL_BRANCHES or cores < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        return [_fit_one(i, idx, job) for i, idx in tasks]
+    global _JOB
+    _JOB = job
+    try:
+        with ProcessPoolExecutor(max_workers=cores, mp_context=multiprocessing.get_context("fork"),
+                                 initializer=_quiet_worker) as pool:
+            return list(pool.map(_fit_in_worker, tasks, chunksize=max(1, len(tasks) // (4 * cores))))
+    finally:
+        _JOB = {}
 
 
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
@@ -624,29 +920,16 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     """
     fits = [None] * len(skel.branches)
     for _ in range(MAX_FIT_ROUNDS):
-        guesses = [_first_guess(b) for b in skel.branches]
-        parts = _assign(points, guesses, skel.junctions, skel, curved)
+        estimates = _Estimates([_first_guess(b) for b in skel.branches], skel)
+        parts = _assign(points, estimates, curved)
+        job = {"points": points, "estimates": estimates, "curved": curved, "kappa": kappa, "kind": kind,
+               "refine": refine, "noise": noise, "quantum": quantum}
+        todo = [i for i, f in enumerate(fits) if f is None]
         reason = ""
-        for i, (guess, idx) in enumerate(zip(guesses, parts)):
-            if fits[i] is None:
-                if len(idx) < C.POINTS_PER_SEGMENT:
-                    reason, fits[i] = f"only {len(idx)} points lie near the first estimate of a tube", False
-                    continue
-                try:
-                    fits[i] = _fit_branch(points[idx], guess, kind=kind, refine=refine)
-                    if refine:
-                        fits[i], idx = _grow(points, fits[i], idx, i, guesses, skel, curved, kind)
-                    fits[i].kappa = kappa[idx]
-                except ReconstructionError as exc:
-                    if len(skel.branches) == 1:
-                        raise
-                    reason, fits[i] = str(exc).split(" — ")[0], False
-                    continue
-        for i, fit in enumerate(fits):
-            if fit:
-                ok, why = _is_tube(_quality(fit), noise, quantum)
-                if not ok:
-                    reason, fits[i] = why, False
+        for i, fit in zip(todo, _fit_all([(i, parts[i]) for i in todo], job)):
+            if isinstance(fit, str):
+                reason, fit = fit, False
+            fits[i] = fit
         drop = [i for i, f in enumerate(fits) if f is False]
         if not drop:
             break
