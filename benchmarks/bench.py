@@ -59,6 +59,9 @@ LASPY_CHUNK = 1_000_000
 #: Targets of the streaming row, from the plant-scale issue: canalsurf's time at most this many times
 #: laspy's alone, and peak memory in MB.
 STREAM_TARGETS = (3.0, 4096)
+#: ... and of a streamed plant (the issue's 10 million points of 200 tubes and more): every tube found,
+#: within this many seconds, with each tube's spine mean within this share of its radius.
+PLANT_TARGETS = (60.0, 0.02)
 #: Targets per size: (largest total wall / floor, largest total wall in seconds, largest peak MB).
 #: Where a ratio is given it is the target and the seconds only say roughly what it means on a
 #: typical machine; a paper-sized cloud has no meaningful floor, so there the seconds count
@@ -105,10 +108,10 @@ def score(n: int, model_path: Path) -> dict:
             "radius": c["radius"]["max"] / r}
 
 
-def _scene():
+def _scene(size: int = SCENE_SIZE, n: int = SCENE_POINTS):
     import canalsurf
 
-    return canalsurf.make_network(SCENE, n=SCENE_POINTS, size=SCENE_SIZE, rng=0)
+    return canalsurf.make_network(SCENE, n=n, size=size, rng=0)
 
 
 def prepare_scene(cloud: Path) -> dict:
@@ -120,18 +123,20 @@ def prepare_scene(cloud: Path) -> dict:
     return {"tubes": len(scene.branches), "junctions": len(scene.junctions)}
 
 
-def score_scene(model_path: Path) -> dict:
-    """Branches found and the worst accuracy over the branches of the scene's model."""
+def score_scene(model_path: Path, size: int = SCENE_SIZE) -> dict:
+    """Branches found and the worst accuracy over the branches of the scene's model (a plant of ``size``
+    bays; its truth sampled with as many points per bay as the scene row)."""
     import canalsurf
     from canalsurf.metrics import compare_network
 
-    network, truth = canalsurf.load_model(model_path), _scene()
+    network, truth = canalsurf.load_model(model_path), _scene(size, SCENE_POINTS * size)
     c = compare_network(network, truth)
     # A true tube is found when the model branch matched to it follows it (covers 95 % of it); the
     # accuracy columns are over the tubes found (a missed tube's "match" is some other branch).
     found = [b for b in c["branches"] if b["covered"] >= FOUND_COVERED]
     return {"branches": len(network.branches), "found_junctions": len(network.junctions),
-            "found": len(found),
+            "found": len(found), "tubes": len(truth.branches), "junctions": len(truth.junctions),
+            "spine_mean_mean": float(sum(b["spine_mean"] for b in found) / max(len(found), 1)),
             "spine_mean": max((b["spine_mean"] for b in found), default=float("nan")),
             "radius": max((b["radius_mean"] for b in found), default=float("nan")),
             "clutter_right": c["clutter_right"], "tube_right": c["tube_right"]}
@@ -148,10 +153,6 @@ def bench_scene(workdir: Path) -> dict:
     else:
         row["error"] = summary.get("error", "")
     return row
-
-
-#: Tubes of the benchmark scene (23 per bay).
-SCENE_TUBES = 23 * SCENE_SIZE
 
 
 def scene_table(row: dict) -> str:
@@ -172,8 +173,9 @@ def scene_table(row: dict) -> str:
     return "\n".join(lines)
 
 
-def prepare_stream(n: int, cloud: Path) -> dict:
-    """Write ``n`` points of the benchmark scene as a LAZ file, a part at a time; seconds and bytes."""
+def prepare_stream(n: int, cloud: Path, size: int = SCENE_SIZE) -> dict:
+    """Write ``n`` points of the benchmark plant of ``size`` bays as a LAZ file, a part at a time; seconds
+    and bytes."""
     import laspy
     import numpy as np
 
@@ -185,7 +187,7 @@ def prepare_stream(n: int, cloud: Path) -> dict:
     header.offsets = np.zeros(3)
     with laspy.open(cloud, mode="w", header=header) as writer:
         for seed, first in enumerate(range(0, n, STREAM_PART)):
-            part = canalsurf.make_network(SCENE, n=min(STREAM_PART, n - first), size=SCENE_SIZE, rng=seed).points
+            part = canalsurf.make_network(SCENE, n=min(STREAM_PART, n - first), size=size, rng=seed).points
             record = laspy.ScaleAwarePointRecord.zeros(len(part), header=header)
             record.x, record.y, record.z = part.T
             writer.write_points(record)
@@ -204,36 +206,42 @@ def laspy_read(cloud: Path) -> dict:
     return {"laspy": time.perf_counter() - start, "read": count}
 
 
-def bench_stream(n: int, workdir: Path) -> dict:
-    """The streaming row: a LAZ file of ``n`` points of the scene, read by laspy alone and reconstructed."""
+def bench_stream(n: int, workdir: Path, size: int = SCENE_SIZE) -> dict:
+    """The streaming row: a LAZ file of ``n`` points of a plant of ``size`` bays, read by laspy alone and
+    reconstructed."""
     cloud, out = workdir / f"{SCENE}-{n}.laz", workdir / "out-stream"
-    row = {"points": n, **_helper("prepare_stream", n, cloud), **_helper("laspy_read", cloud)}
+    row = {"points": n, "size": size, **_helper("prepare_stream", n, cloud, size), **_helper("laspy_read", cloud)}
     wall, rss, summary, code = run_cli(cloud, out)
     cloud.unlink()
     row.update(wall=wall, rss=rss, ratio=wall / row["laspy"], exit=code)
     if code == 0:
         row.update(sampled=summary.get("points_sampled", summary.get("points_read")), read=summary["read_seconds"],
-                   stages=summary["diagnostics"]["seconds"], **_helper("score_scene", out / "model.json"))
+                   stages=summary["diagnostics"]["seconds"], **_helper("score_scene", out / "model.json", size))
     else:
         row["error"] = summary.get("error", "")
     return row
 
 
 def stream_table(row: dict) -> str:
-    head = ("| points in the LAZ file | file MB | generated in s | laspy alone s | canalsurf wall s | ratio | peak MB "
-            "| of which reading s | stages s | points reconstructed | tubes found | spine mean % r (worst tube found) "
-            "| radius err % r (worst) | targets met |")
+    head = ("| points in the LAZ file | bays | file MB | generated in s | laspy alone s | canalsurf wall s | ratio "
+            "| peak MB | of which reading s | stages s | points reconstructed | tubes found | junctions found "
+            "| spine mean % r (mean, worst over the tubes found) | radius err % r (worst) | targets met |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    start = (f"| {row['points']:,} | {row['bytes'] / 2**20:.0f} | {row['generate']:.0f} | {row['laspy']:.2f} | "
-             f"{row['wall']:.2f} | {row['ratio']:.2f} | {row['rss'] / 2**20:.0f} |")
+    start = (f"| {row['points']:,} | {row['size']} | {row['bytes'] / 2**20:.0f} | {row['generate']:.0f} | "
+             f"{row['laspy']:.2f} | {row['wall']:.2f} | {row['ratio']:.2f} | {row['rss'] / 2**20:.0f} |")
     if row["exit"] != 0:
         lines.append(f"{start} failed (exit {row['exit']}): {row['error'].strip()} |")
         return "\n".join(lines)
     ratio, megabytes = STREAM_TARGETS
+    seconds, spine = PLANT_TARGETS
     missed = [text for text, miss in ((f"ratio > {ratio:g}", row["ratio"] > ratio),
-                                      (f"peak > {megabytes:,} MB", row["rss"] / 2**20 > megabytes)) if miss]
+                                      (f"peak > {megabytes:,} MB", row["rss"] / 2**20 > megabytes),
+                                      ("a tube missed", row["found"] < row["tubes"]),
+                                      (f"spine mean > {100 * spine:g} % r", row["spine_mean"] > spine),
+                                      (f"wall > {seconds:g} s", row["wall"] > seconds)) if miss]
     lines.append(f"{start} {row['read']:.2f} | {sum(row['stages'].values()):.2f} | {row['sampled']:,} | "
-                 f"{row['found']} of {SCENE_TUBES} | {100 * row['spine_mean']:.2f} | "
+                 f"{row['found']} of {row['tubes']} | {row['found_junctions']} (true {row['junctions']}) | "
+                 f"{100 * row['spine_mean_mean']:.2f}, {100 * row['spine_mean']:.2f} | "
                  f"{100 * row['radius']:.2f} | {'no: ' + ', '.join(missed) if missed else 'yes'} |")
     return "\n".join(lines)
 
@@ -352,6 +360,8 @@ def main(argv=None) -> int:
     parser.add_argument("--no-scene", action="store_true", help="leave out the benchmark scene")
     parser.add_argument("--stream", type=int, metavar="N",
                         help="also stream a LAZ file of N points of the scene (e.g. 10000000)")
+    parser.add_argument("--bays", type=int, default=SCENE_SIZE,
+                        help="bays of the streamed plant (23 tubes each; 9 for the plant-scale bar of 207 tubes)")
     parser.add_argument("--startup", action="store_true",
                         help="also compare a 2,000-point run with a process that only imports numpy and scipy")
     parser.add_argument("--helper", nargs="+", help=argparse.SUPPRESS)
@@ -362,9 +372,9 @@ def main(argv=None) -> int:
         if task == "prepare_scene":
             print(json.dumps(prepare_scene(Path(rest[0]))))
         elif task == "score_scene":
-            print(json.dumps(score_scene(Path(rest[0]))))
+            print(json.dumps(score_scene(Path(rest[0]), *map(int, rest[1:]))))
         elif task == "prepare_stream":
-            print(json.dumps(prepare_stream(int(rest[0]), Path(rest[1]))))
+            print(json.dumps(prepare_stream(int(rest[0]), Path(rest[1]), *map(int, rest[2:]))))
         elif task == "laspy_read":
             print(json.dumps(laspy_read(Path(rest[0]))))
         elif task == "prepare":
@@ -381,7 +391,7 @@ def main(argv=None) -> int:
             rows.append(bench(n, Path(tmp), repeat=max(1, args.repeat)))
             print(table(rows[-1:]).splitlines()[-1], flush=True)
         scene = None if args.no_scene else scene_table(bench_scene(Path(tmp)))
-        stream = None if args.stream is None else stream_table(bench_stream(args.stream, Path(tmp)))
+        stream = None if args.stream is None else stream_table(bench_stream(args.stream, Path(tmp), args.bays))
         startup = bench_startup(Path(tmp)) if args.startup else None
     text = table(rows) if rows else ""
     print(text)
