@@ -159,3 +159,28 @@ def test_a_plant_of_tubes_four_times_apart_in_radius_is_found_whole():
         assert b["covered"] >= COVERED, (i, b)
         assert b["spine_mean"] <= SPINE_MEAN, (i, b)
         assert b["radius_mean"] <= RADIUS_MEAN, (i, b)
+
+
+def test_a_link_across_the_ends_of_two_pipes_is_no_tube():
+    """Two rack pipes ending side by side, a short branch across their ends (their end caps thinned to a
+    link), and a T's side branch: only the link, whose spine lies inside the pipes, is no tube."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _inside_others
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    def branch(a, b, r, ends=(None, None)):
+        u = np.linspace(0.0, 1.0, 50)
+        spine = pspline_fit(u, np.asarray(a, float) + u[:, None] * (np.subtract(b, a)), n_segments=4)
+        return (SimpleNamespace(spine=spine, radius=constant_spline(r), eq6=r),
+                SkeletonBranch(np.array([a, b], float), np.ones(2), np.full(2, r), ends))
+
+    parts = [branch([0, 0, 0], [0, 20, 0], 1.3), branch([2.55, 0, 0], [2.55, 20, 0], 0.5),
+             branch([0, 0, 0], [2.55, 0, 0], 0.9),
+             # a T: a main pipe in two halves and a side branch from their junction at (10, 10, 0)
+             branch([0, 10, 8], [10, 10, 8], 1.2, (None, 0)), branch([10, 10, 8], [20, 10, 8], 1.2, (0, None)),
+             branch([10, 10, 8], [10, 16, 8], 0.7, (0, None))]
+    fits = [f for f, _ in parts]
+    skel = Skeleton([b for _, b in parts], np.array([[10.0, 10.0, 8.0]]), 0.1)
+    assert _inside_others(fits, skel) == [2]

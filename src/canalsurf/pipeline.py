@@ -909,6 +909,45 @@ def _fit_all(tasks: list, job: dict) -> list:
         _JOB = {}
 
 
+#: A branch whose spine lies inside other tubes along more than this share of it (away from its own
+#: junctions) is no tube of its own: it bridges the ends of neighbours (a rack's pipes end side by side,
+#: and their end caps can thin to a short link across them) -- a real tube's spine is inside no other.
+MAX_INSIDE_OTHERS = 0.5
+#: Spine samples per branch of that test.
+INSIDE_SAMPLES = 100
+
+
+def _inside_others(fits: list, skel: Skeleton) -> list:
+    """Indices of the fitted branches whose spine runs inside other fitted tubes (see MAX_INSIDE_OTHERS)."""
+    live = [i for i, f in enumerate(fits) if f]
+    if len(live) < 2:
+        return []
+    t = np.linspace(0.0, 1.0, INSIDE_SAMPLES)
+    pts = np.concatenate([fits[i].spine(t) for i in live])
+    r = np.concatenate([fits[i].radius(t) for i in live])
+    owner = np.repeat(live, INSIDE_SAMPLES)
+    reach = np.zeros(len(skel.junctions))
+    for i in live:
+        for j in skel.branches[i].ends:
+            if j is not None:
+                reach[j] = max(reach[j], JUNCTION_EXCLUSION_RADII * fits[i].eq6)
+    inside = np.zeros(len(pts), bool)
+    for a, near in enumerate(cKDTree(pts).query_ball_point(pts, float(r.max()), workers=-1)):
+        near = np.asarray(near)
+        near = near[owner[near] != owner[a]]
+        inside[a] = bool((np.linalg.norm(pts[near] - pts[a], axis=1) < r[near]).any())
+    out = []
+    for n, i in enumerate(live):
+        mine = slice(n * INSIDE_SAMPLES, (n + 1) * INSIDE_SAMPLES)
+        away = np.ones(INSIDE_SAMPLES, bool)
+        for j in skel.branches[i].ends:
+            if j is not None:
+                away &= np.linalg.norm(pts[mine] - skel.junctions[j], axis=1) > reach[j]
+        if away.any() and inside[mine][away].mean() > MAX_INSIDE_OTHERS:
+            out.append(i)
+    return out
+
+
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
                  quantum: float, curved: np.ndarray, kappa: np.ndarray):
     """Fit every branch; drop those that are no tube and join the branches they separated.
@@ -930,6 +969,8 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             if isinstance(fit, str):
                 reason, fit = fit, False
             fits[i] = fit
+        for i in _inside_others(fits, skel):
+            reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
         drop = [i for i, f in enumerate(fits) if f is False]
         if not drop:
             break
