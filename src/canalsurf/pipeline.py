@@ -205,8 +205,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                       timer=timer, fallback=True, densify=stop == "auto" and R is None and H is None)
     passes = [first]
     if stop == "auto" and R is None and delta is None and H is None:
-        passes += _finer_scales(scan, first, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
-                                timer=timer)
+        passes = _finer_scales(scan, first, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
+                               timer=timer)
     with timer("skeleton"):
         skel = skeletonize(np.concatenate([s.thin for s in passes]), np.concatenate([s.r_i for s in passes]),
                            spacing=np.concatenate([np.full(len(s.thin), C.ORDER_VOXEL_PER_H * s.p["H"])
@@ -274,8 +274,9 @@ class _Pass:
 
 
 def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbours: str, quantum: float,
-                  timer: _Timer, fallback: bool) -> _Pass:
-    """Normals, parameters, shrinking and thinning of ``scan``'s subset.
+                  timer: _Timer, fallback: bool, widest: float = 1.0) -> _Pass:
+    """Normals, parameters, shrinking and thinning of ``scan``'s subset (r0 over the points that curve
+    at least as tightly as a tube of radius ``widest``).
 
     With ``fallback``, normals that cannot be trusted (coordinates quantised to steps near the radius)
     give way to cross-sections of the points themselves.
@@ -283,7 +284,7 @@ def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbou
     algo = "pipe" if kind == "pipe" else "canal"
     with timer("normals"):
         scan, nrm, r0, area_per_point, curved, noise, kappa = _normals(scan, k, flat_out=stop == "auto",
-                                                                       quantum=quantum)
+                                                                       quantum=quantum, widest=widest)
     p = _parameters(r0, area_per_point, scan.scale, algo=algo, stop=stop, **given)
     with timer("shrink"):
         try:
@@ -386,7 +387,7 @@ def _explained(points: np.ndarray, run: _Pass) -> np.ndarray:
 
 def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neighbours: str, quantum: float,
                   timer: _Timer) -> list:
-    """Further passes of the paper's stages on the points no earlier pass explained.
+    """The first pass, and further passes of the paper's stages on the points no earlier pass explained.
 
     One scale cannot serve a scene of tubes of very different radii: the subset and the parameters
     (R, delta, H) follow the first radius estimate r0, the median over the scene, and a tube a few
@@ -395,7 +396,7 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
     relative to its own median radius, and run again, until too little is left or nothing more is
     found.  The work grows with the tubes found, not with the points.
     """
-    runs = []
+    runs = [first]
     left = np.ones(len(scan.all_pts), bool)
     run, coarser = first, first.r0
     for _ in range(MAX_SCALE_PASSES - 1):
@@ -413,8 +414,10 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
                             None if scan.all_normals is None else scan.all_normals[pool], draw, None, None),
                       int(min(max(n, C.MAX_SHRINK_POINTS), MAX_STAGE_POINTS)))
         try:
+            # Its r0 over the points that curve at least as tightly as the last scale: a scene's floor
+            # and boxes, most of what is left, would otherwise set it.
             run = _paper_stages(sub, k, given, kind=kind, stop="auto", neighbours=neighbours, quantum=quantum,
-                                timer=timer, fallback=False)
+                                timer=timer, fallback=False, widest=coarser)
         except ReconstructionError as exc:
             log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
             break
@@ -425,9 +428,18 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         log.info("a finer pass on %d points left unexplained: r0 = %.4g, %d thin points",
                  len(pool), run.r0 * scan.scale, len(run.thin))
         run.pool = pool
+        # What the last pass could not explain is this one's now: its thin points from those points (a
+        # tube too thin for that scale, shrunk past its spine) would only link tubes that are apart.
+        runs[-1] = _trimmed(runs[-1])
         runs.append(run)
         coarser = run.r0
     return runs
+
+
+def _trimmed(run: _Pass) -> _Pass:
+    """The pass with only the thin points whose own input points its skeleton explains."""
+    ok = _explained(run.scan.pts[run.curved[run.kept]], run)
+    return replace(run, kept=run.kept[ok], thin=run.thin[ok], r_i=run.r_i[ok])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -458,8 +470,11 @@ def _prepare(points, normals, k) -> _Scan:
     return _Scan(origin, scale, pts, given, draw, pts[pick], None if given is None else given[pick])
 
 
-def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0):
+def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0, widest: float = 1.0):
     """Normals, the first radius estimate r0, the area per point and the points that may shrink.
+
+    r0 is taken over the points that curve at least as tightly as a tube of radius ``widest`` (in the
+    normalised units: the cloud's RMS size is 1; a finer pass gives the last pass's r0).
 
     A long, thin tube (or a scene of many) spreads a fixed-size subset too thinly around each
     circumference: the subset then grows (once) to be as dense, relative to the radius, as a usual one.
@@ -480,7 +495,7 @@ def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0):
             # Flat clutter (a floor, walls) pulls the median towards large radii: take it again over
             # the points that curve at all -- no tube is wider than the cloud, whose RMS distance from
             # its centre is 1 here -- and then over those curved enough to lie on a tube.
-            r0 = curvature_radius(scan.pts, nrm, kappa=kappa[kappa >= 1.0])
+            r0 = curvature_radius(scan.pts, nrm, kappa=kappa[kappa * widest >= 1.0])
             if np.isfinite(r0):
                 r0 = curvature_radius(scan.pts, nrm, kappa=kappa[kappa * C.MAX_SHRINK_PER_RADIUS * r0 >= 1.0])
         dist, nbr = tree.query(scan.pts, k=min(C.NORMAL_NEIGHBOURS, len(scan.pts)), workers=-1)
