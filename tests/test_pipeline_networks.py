@@ -163,24 +163,26 @@ def test_a_plant_of_tubes_four_times_apart_in_radius_is_found_whole():
 
 def test_a_link_across_the_ends_of_two_pipes_is_no_tube():
     """Two rack pipes ending side by side, a short branch across their ends (their end caps thinned to a
-    link), and a T's side branch: only the link, whose spine lies inside the pipes, is no tube."""
+    link), a T's side branch, and a pipe found twice (by two passes): only the link, whose spine lies
+    inside the pipes, and the copy with fewer points are no tubes."""
     from types import SimpleNamespace
 
     from canalsurf.pipeline import _inside_others
     from canalsurf.skeleton import Skeleton, SkeletonBranch
     from canalsurf.spine import constant_spline, pspline_fit
 
-    def branch(a, b, r, ends=(None, None)):
+    def branch(a, b, r, ends=(None, None), n_points=1000):
         u = np.linspace(0.0, 1.0, 50)
         spine = pspline_fit(u, np.asarray(a, float) + u[:, None] * (np.subtract(b, a)), n_segments=4)
-        return (SimpleNamespace(spine=spine, radius=constant_spline(r), eq6=r),
+        return (SimpleNamespace(spine=spine, radius=constant_spline(r), eq6=r, points=np.zeros((n_points, 3))),
                 SkeletonBranch(np.array([a, b], float), np.ones(2), np.full(2, r), ends))
 
     parts = [branch([0, 0, 0], [0, 20, 0], 1.3), branch([2.55, 0, 0], [2.55, 20, 0], 0.5),
              branch([0, 0, 0], [2.55, 0, 0], 0.9),
-             # a T: a main pipe in two halves and a side branch from their junction at (10, 10, 0)
+             # a T: a main pipe in two halves and a side branch from their junction at (10, 10, 8)
              branch([0, 10, 8], [10, 10, 8], 1.2, (None, 0)), branch([10, 10, 8], [20, 10, 8], 1.2, (0, None)),
-             branch([10, 10, 8], [10, 16, 8], 0.7, (0, None))]
+             branch([10, 10, 8], [10, 16, 8], 0.7, (0, None)),
+             branch([0, 0, 20], [0, 20, 20], 1.0, n_points=900), branch([0.02, 0, 20], [0.02, 20, 20], 1.0)]
     fits = [f for f, _ in parts]
     skel = Skeleton([b for _, b in parts], np.array([[10.0, 10.0, 8.0]]), 0.1)
-    assert _inside_others(fits, skel) == [2]
+    assert sorted(_inside_others(fits, skel)) == [2, 6]

@@ -392,9 +392,9 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
     One scale cannot serve a scene of tubes of very different radii: the subset and the parameters
     (R, delta, H) follow the first radius estimate r0, the median over the scene, and a tube a few
     times thinner is too sparse there for its normals to curve (it reads as flat) or shrinks with a
-    step that overshoots its spine.  What the first pass left unexplained is drawn again, as densely
-    relative to its own median radius, and run again, until too little is left or nothing more is
-    found.  The work grows with the tubes found, not with the points.
+    step that overshoots its spine.  What the first pass left unexplained is drawn again, DENSIFY times
+    as densely, and run again at its own scale, until too little is left or nothing finer is found.
+    The work grows with the tubes found, not with the points.
     """
     runs = [first]
     left = np.ones(len(scan.all_pts), bool)
@@ -402,8 +402,8 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
     for _ in range(MAX_SCALE_PASSES - 1):
         with timer("normals"):
             left[left] = ~_explained(scan.all_pts[left], run)
-        if left.sum() < max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left)):
-            break
+        if scan.draw is None or left.sum() < max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left)):
+            break  # too little left (a scan no larger than one subset has no denser one to draw)
         pool = np.flatnonzero(left)
         local = np.cumsum(left) - 1  # index in the pool of each point of it
         draw = local[scan.draw[left[scan.draw]]]
@@ -933,34 +933,54 @@ INSIDE_SAMPLES = 100
 
 
 def _inside_others(fits: list, skel: Skeleton) -> list:
-    """Indices of the fitted branches whose spine runs inside other fitted tubes (see MAX_INSIDE_OTHERS)."""
+    """Indices of the fitted branches whose spine runs inside other fitted tubes (see MAX_INSIDE_OTHERS).
+
+    They are taken out one at a time, the most inside (and of those the one with the fewest points)
+    first, each against the branches still in: of a tube found twice (two passes, two pieces that
+    overlap) one copy stays.
+    """
     live = [i for i, f in enumerate(fits) if f]
     if len(live) < 2:
         return []
     t = np.linspace(0.0, 1.0, INSIDE_SAMPLES)
     pts = np.concatenate([fits[i].spine(t) for i in live])
     r = np.concatenate([fits[i].radius(t) for i in live])
-    owner = np.repeat(live, INSIDE_SAMPLES)
+    owner = np.repeat(np.arange(len(live)), INSIDE_SAMPLES)
     reach = np.zeros(len(skel.junctions))
     for i in live:
         for j in skel.branches[i].ends:
             if j is not None:
                 reach[j] = max(reach[j], JUNCTION_EXCLUSION_RADII * fits[i].eq6)
-    inside = np.zeros(len(pts), bool)
-    for a, near in enumerate(cKDTree(pts).query_ball_point(pts, float(r.max()), workers=-1)):
-        near = np.asarray(near)
-        near = near[owner[near] != owner[a]]
-        inside[a] = bool((np.linalg.norm(pts[near] - pts[a], axis=1) < r[near]).any())
-    out = []
+    away = np.ones(len(pts), bool)
     for n, i in enumerate(live):
-        mine = slice(n * INSIDE_SAMPLES, (n + 1) * INSIDE_SAMPLES)
-        away = np.ones(INSIDE_SAMPLES, bool)
         for j in skel.branches[i].ends:
             if j is not None:
-                away &= np.linalg.norm(pts[mine] - skel.junctions[j], axis=1) > reach[j]
-        if away.any() and inside[mine][away].mean() > MAX_INSIDE_OTHERS:
-            out.append(i)
-    return out
+                mine = owner == n
+                away[mine] &= np.linalg.norm(pts[mine] - skel.junctions[j], axis=1) > reach[j]
+    # (sample, other branch) pairs where the sample lies inside that branch's tube
+    pairs = []
+    for a, near in enumerate(cKDTree(pts).query_ball_point(pts, float(r.max()), workers=-1)):
+        near = np.asarray(near, int)
+        near = near[(owner[near] != owner[a]) & (np.linalg.norm(pts[near] - pts[a], axis=1) < r[near])]
+        pairs += [(a, o) for o in np.unique(owner[near])]
+    if not pairs:
+        return []
+    sample, other = np.array(pairs).T
+    keep = away[sample]
+    sample, other = sample[keep], other[keep]
+    alive = np.ones(len(live), bool)
+    size = np.array([len(fits[i].points) for i in live])
+    out = []
+    while True:
+        covered = np.zeros(len(pts), bool)
+        covered[sample[alive[other]]] = True
+        share = np.bincount(owner, covered, len(live)) / np.maximum(np.bincount(owner, away, len(live)), 1)
+        share[~alive] = 0.0
+        worst = max(range(len(live)), key=lambda n: (share[n], -size[n]))
+        if share[worst] <= MAX_INSIDE_OTHERS:
+            return out
+        alive[worst] = False
+        out.append(live[worst])
 
 
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
