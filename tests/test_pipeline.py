@@ -142,3 +142,26 @@ def test_stored_normals_that_point_inward_are_flipped(n, caplog):
     assert "point into the tube" in caplog.text
     assert inward.kind == outward.kind
     assert inward.mean_radius == pytest.approx(outward.mean_radius, rel=1e-6)
+
+
+def test_a_pass_that_explains_little_of_its_subset_runs_again_denser(monkeypatch, random_cloud):
+    """The control of the first pass: a subset whose skeleton explains less than half its curved points
+    is drawn four times as large, until one explains enough (or every point, or the cap, is drawn)."""
+    from types import SimpleNamespace
+
+    from canalsurf import pipeline
+
+    sizes, shares = [], iter([0.2, 0.3, 0.9, 0.9])
+
+    def stages(scan, *args, **kwargs):
+        sizes.append(len(scan.pts))
+        return SimpleNamespace(scan=scan, curved=np.arange(10))
+
+    monkeypatch.setattr(pipeline, "_paper_stages", stages)
+    monkeypatch.setattr(pipeline, "_explained_share", lambda run: next(shares))
+    scan = pipeline._prepare(random_cloud(200_000)[0], None, None)
+    pipeline._resolved(scan, None, {}, densify=True)
+    assert sizes == [5_000, 20_000, 80_000]
+    sizes.clear()
+    pipeline._resolved(scan, None, {}, densify=False)
+    assert sizes == [5_000]
