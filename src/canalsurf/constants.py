@@ -37,8 +37,8 @@ PEAK_MIN_SHARE = 0.1
 #: Robust stop for Algorithm 2: this many moves without a newly stopped point (after half stopped) ...
 PATIENCE = 3
 #: ... where a move that stops fewer than this share of the points counts as stopping none: clutter and
-#: stray points among tens of thousands stop a few at a time, every move, to the last (a scene's 50,000
-#: points trickled 5 - 15 per move until the move bound).
+#: stray points among tens of thousands stop a few at a time, every move, to the last, so that a scene's
+#: shrinking ran to the move bound.
 PATIENCE_SHARE = 5e-4
 #: Shrinking never moves a point farther than this many r0 (a hard bound on the iterations).
 MAX_SHRINK_PER_RADIUS = 4.0
