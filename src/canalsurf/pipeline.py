@@ -201,10 +201,13 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     with timer("normals"):
         quantum = quantisation_noise(scan.all_pts)
     given = {"R": R, "delta": delta, "mu": mu, "tau": tau, "H": H}
+    # Denser subsets and finer scales choose their own R, delta and H: not with the paper's rule, nor
+    # with the scale given.
+    automatic = stop == "auto" and R is None and delta is None and H is None
     first = _resolved(scan, k, given, kind=kind, stop=stop, neighbours=neighbours, quantum=quantum,
-                      timer=timer, fallback=True, densify=stop == "auto" and R is None and H is None)
+                      timer=timer, fallback=True, densify=automatic)
     passes = [first]
-    if stop == "auto" and R is None and delta is None and H is None:
+    if automatic:
         passes = _finer_scales(scan, first, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
                                timer=timer)
     with timer("skeleton"):
