@@ -11,11 +11,8 @@ from __future__ import annotations
 
 import logging
 import math
-import multiprocessing
 import os
-import signal
 import time
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
@@ -901,6 +898,8 @@ def _fit_in_worker(task: tuple) -> _BranchFit | str:
 
 
 def _quiet_worker() -> None:
+    import signal
+
     # Ctrl-C is the parent's to handle (it cleans up and exits; the workers then find their queue closed).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
@@ -914,6 +913,9 @@ def _fit_all(tasks: list, job: dict) -> list:
     """:func:`_fit_one` of every (branch, points) task; over the cores in forked processes (Linux) when
     there are many, so that a scene's hundreds of branches take a share of the time.  Each fit depends
     on its task alone, so the results are the same either way."""
+    import multiprocessing  # only for a scene: a single tube's run does not pay for the import
+    from concurrent.futures import ProcessPoolExecutor
+
     cores = _cores()
     if len(tasks) < PARALLEL_BRANCHES or cores < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return [_fit_one(i, idx, job) for i, idx in tasks]
