@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from canalsurf.errors import ReconstructionError
-from canalsurf.skeleton import (MIN_BRANCH_POINTS, SEPARATE_RADII, SPUR_RADII, Skeleton, SkeletonBranch,
-                                skeletonize, without_branches)
+from canalsurf.skeleton import (HAIRPIN_LEGS_RADII, MAX_JOIN_TURN, MIN_BRANCH_POINTS, SEPARATE_RADII, SPUR_RADII,
+                                Skeleton, SkeletonBranch, skeletonize, without_branches)
 
 SEED = 3
 N = 2000
@@ -338,6 +338,51 @@ def test_touching_parallel_lines_are_one_network():
     assert len(skel.junctions) >= 1
     # every branch is joined to the rest through junctions
     assert all(any(e is not None for e in b.ends) for b in skel.branches)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_two_lines_ending_side_by_side_and_linked_by_strays_are_two_branches(seed):
+    """Two parallel lines of radius 0.1, 2.5 radii apart, whose ends a trail of thin points links (as
+    the shrunk ends of two rack pipes can): not one branch turning back through the trail, but two
+    open branches, each within a voxel of its own line for its whole length but the trail's end."""
+    rng = np.random.default_rng(seed)
+    radius, gap = 0.1, 0.25
+    assert gap < HAIRPIN_LEGS_RADII * radius
+    lines = [([0.0, 0.0, 0.0], [3.0, 0.0, 0.0]), ([0.0, gap, 0.0], [3.0, gap, 0.0])]
+    points = np.vstack([_segment(rng, a, b) for a, b in lines] + [_segment(rng, lines[0][1], lines[1][1])])
+    skel = skeletonize(points[rng.permutation(len(points))], _radii(points, radius), spacing=SPACING)
+    assert len(skel.branches) == 2 and skel.junctions.shape == (0, 3)
+    on = []
+    for branch in skel.branches:
+        assert branch.ends == (None, None)
+        dist = np.array([_segment_distance(branch.points, a, b)[0].max() for a, b in lines])
+        assert dist.min() <= SPACING
+        on.append(int(np.argmin(dist)))
+        assert np.ptp(branch.points[:, 0]) >= 3.0 - 3 * radius
+    assert sorted(on) == [0, 1]
+
+
+def test_a_return_bend_is_one_branch(curve_distance):
+    """A 180-degree return bend of bend radius 2 r (legs 4 r apart: a short-radius fitting) turns back
+    by more than MAX_JOIN_TURN between its legs, but they lie farther apart than two tubes that end
+    side by side: it stays one branch, end to end."""
+    rng = np.random.default_rng(SEED)
+    radius = 0.1
+    bend = 2 * radius
+
+    def u_bend(t):  # legs of 2 along x joined by a half circle, by arc length
+        total = 4.0 + np.pi * bend
+        s = np.asarray(t) * total
+        leg, arc = np.minimum(s, 2.0), np.clip(s - 2.0, 0.0, np.pi * bend) / bend
+        back = np.clip(s - 2.0 - np.pi * bend, 0.0, 2.0)
+        return np.column_stack([leg + bend * np.sin(arc) - back, bend - bend * np.cos(arc), np.zeros_like(s)])
+
+    points = u_bend(rng.uniform(0.0, 1.0, 2000)) + rng.normal(scale=THIN_SIGMA, size=(2000, 3))
+    branch = _single(points, radius)
+    s, dist = _arc_positions(branch.points, u_bend, curve_distance)
+    assert dist.max() <= SPACING
+    assert s[0] <= 2 * SPACING and s[-1] >= 4.0 + np.pi * bend - 2 * SPACING
+    assert MAX_JOIN_TURN < 180.0 and 2 * bend > HAIRPIN_LEGS_RADII * radius
 
 
 @pytest.mark.parametrize(("radius", "pieces"), [(RADIUS, 1), (0.08, 2)])

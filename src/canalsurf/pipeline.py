@@ -322,6 +322,9 @@ FINER_SCALE = 0.75
 #: A further pass runs only on at least this many unexplained points, and this share of the scan.
 MIN_PASS_POINTS = C.MAX_SHRINK_POINTS
 MIN_PASS_SHARE = 0.02
+#: What a pass leaves unexplained is first estimated on this many points of the draw: far below what
+#: a further pass needs (most scans are one tube, explained whole), the other points are not queried.
+EXPLAINED_SAMPLE = 50_000
 
 
 #: A pass whose skeleton explains less than this share of the subset's curved points saw the scan too
@@ -400,10 +403,19 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
     left = np.ones(len(scan.all_pts), bool)
     run, coarser = first, first.r0
     for _ in range(MAX_SCALE_PASSES - 1):
+        if scan.draw is None:
+            break  # a scan no larger than one subset has no denser one to draw
+        least = max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left))
         with timer("normals"):
+            sample = scan.draw[:EXPLAINED_SAMPLE]
+            sample = sample[left[sample]]
+            unexplained = int((~_explained(scan.all_pts[sample], run)).sum())
+            estimate = unexplained * len(left) / min(EXPLAINED_SAMPLE, len(left))
+            if estimate < least / 2:
+                break
             left[left] = ~_explained(scan.all_pts[left], run)
-        if scan.draw is None or left.sum() < max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left)):
-            break  # too little left (a scan no larger than one subset has no denser one to draw)
+        if left.sum() < least:
+            break  # too little left
         pool = np.flatnonzero(left)
         local = np.cumsum(left) - 1  # index in the pool of each point of it
         draw = local[scan.draw[left[scan.draw]]]

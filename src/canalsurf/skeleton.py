@@ -12,7 +12,8 @@ voxel size cut (stray points, gaps between separate tubes).  In each tree:
 * nodes where three or more ways meet and which lie within ``JUNCTION_RADII`` local radii of each
   other along the tree are one **junction**;
 * the paths between junctions and ends are the **branches**.  A tree that is a single path whose ends
-  are no farther apart than a kept link is a closed loop (the tree had to break it somewhere).
+  are no farther apart than a kept link (nor the two tubes' radii) is a closed loop (the tree had to
+  break it somewhere).
 
 Trees that stand for too few points or are shorter than a radius are left out (stray points).
 """
@@ -48,6 +49,17 @@ JUNCTION_RADII = 1.0
 MIN_BRANCH_POINTS = 20
 #: A tree shorter than this many local radii is no tube (a blob of stray points).
 MIN_TREE_RADII = 1.0
+#: Two branches left alone at a junction are one pipe run only if the way through it turns by at
+#: most this much (degrees): a tee's run goes straight on, an elbow turns 90 degrees; two tubes that
+#: end side by side (their ends linked by a dropped piece) would turn back on themselves, 180 degrees.
+MAX_JOIN_TURN = 120.0
+#: The direction in which a branch leaves a junction is that of its chord between these many radii
+#: (of the larger tube there) from the junction: nearer, the thin set bends into the junction's smear.
+END_DIRECTION_RADII = (2.0, 6.0)
+#: A branch that turns back on itself (more than MAX_JOIN_TURN) with legs closer together than this
+#: many of their radii is two tubes whose ends the thin set linked, and is cut apart: a 180-degree
+#: return bend's legs are 4 radii apart (short radius), a hose's or a cable's more.
+HAIRPIN_LEGS_RADII = 3.0
 
 
 @dataclass
@@ -291,13 +303,80 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing) -> Skeleton:
         sel = owner == b
         w = weight[sel]
         r = np.where(w > 0, rsum[sel] / np.maximum(w, 1e-300), node_r[path])
-        loop = (ja is None and jb is None and len(path) >= MIN_LOOP_LINKS
-                and np.linalg.norm(nodes[path[0]] - nodes[path[-1]]) <= cut[path].max())
+        closing = np.linalg.norm(nodes[path[0]] - nodes[path[-1]])
+        loop = (ja is None and jb is None and len(path) >= MIN_LOOP_LINKS and closing <= cut[path].max()
+                and closing <= SEPARATE_RADII * (node_r[path[0]] + node_r[path[-1]]))
         ends = (None, None) if loop else (None if ja is None else renumber[ja],
                                           None if jb is None else renumber[jb])
-        branches.append(SkeletonBranch(nodes[path], np.maximum(w, 0.0), r, ends, bool(loop)))
+        branches += _cut_hairpins(SkeletonBranch(nodes[path], np.maximum(w, 0.0), r, ends, bool(loop)))
     return Skeleton(branches, junctions, link)
 
+
+
+def _inward(b: SkeletonBranch, end: int, radius: float) -> np.ndarray:
+    """Unit direction from the branch's end ``end`` (0 or 1) into it (see END_DIRECTION_RADII)."""
+    pts = b.points if end == 0 else b.points[::-1]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    near, far = np.minimum(np.searchsorted(s, np.multiply(END_DIRECTION_RADII, radius)), len(pts) - 1)
+    d = pts[far] - pts[near if near < far else 0]
+    return d / max(float(np.linalg.norm(d)), 1e-300)
+
+
+def _continues(first: tuple, second: tuple) -> bool:
+    """Whether two (branch, end) meeting at a junction go on one from the other (see MAX_JOIN_TURN)."""
+    radius = max(float(np.median(b.radius)) for b, _ in (first, second))
+    cos = _inward(*first, radius) @ _inward(*second, radius)
+    return bool(180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= MAX_JOIN_TURN)
+
+
+def _hairpins(branch: SkeletonBranch) -> list:
+    """Vertices where an open branch turns back on itself between legs closer than a bend's.
+
+    It turns by more than ``MAX_JOIN_TURN`` between its chords over ``END_DIRECTION_RADII`` of its
+    (median) radius before and after the vertex, and those chords' far ends lie less than
+    ``HAIRPIN_LEGS_RADII`` of the larger radius there apart across the legs.
+    """
+    if branch.closed:
+        return []
+    pts, radius = branch.points, float(np.median(branch.radius))
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    near, far = END_DIRECTION_RADII[0] * radius, END_DIRECTION_RADII[1] * radius
+    inner = np.flatnonzero((s >= near) & (s[-1] - s >= near))
+    if not len(inner):
+        return []
+    a = np.searchsorted(s, s[inner] - far)
+    b = np.minimum(np.searchsorted(s, s[inner] + far), len(pts) - 1)
+    before = pts[a] - pts[np.searchsorted(s, s[inner] - near, side="right") - 1]
+    after = pts[b] - pts[np.searchsorted(s, s[inner] + near)]
+    before /= np.maximum(np.linalg.norm(before, axis=1, keepdims=True), 1e-300)
+    after /= np.maximum(np.linalg.norm(after, axis=1, keepdims=True), 1e-300)
+    turn = 180.0 - np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", before, after), -1.0, 1.0)))
+    along = before + after
+    along /= np.maximum(np.linalg.norm(along, axis=1, keepdims=True), 1e-300)
+    apart = pts[a] - pts[b]
+    across = np.linalg.norm(apart - np.einsum("ij,ij->i", apart, along)[:, None] * along, axis=1)
+    local = np.maximum(branch.radius[a], branch.radius[b])
+    tight = (turn > MAX_JOIN_TURN) & (across < HAIRPIN_LEGS_RADII * local)
+    runs = np.split(np.arange(len(inner)), np.flatnonzero(np.diff(tight.astype(int))) + 1)
+    return [int(inner[run[np.argmax(turn[run])]]) for run in runs if tight[run[0]]]
+
+
+def _cut_hairpins(branch: SkeletonBranch) -> list:
+    """The branch cut apart at its :func:`_hairpins`, less the vertices within ``END_DIRECTION_RADII[0]``
+    of its radius of each cut (there the thin set bends from one piece into the other); the pieces get
+    open ends at the cuts."""
+    cuts = _hairpins(branch)
+    if not cuts:
+        return [branch]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(branch.points, axis=0), axis=1))])
+    keep = np.ones(len(s), bool)
+    for k in cuts:
+        keep &= np.abs(s - s[k]) >= END_DIRECTION_RADII[0] * float(np.median(branch.radius))
+    pieces = np.split(np.arange(len(s)), np.flatnonzero(np.diff(keep.astype(int))) + 1)
+    last = len(s) - 1
+    return [SkeletonBranch(branch.points[p], branch.weights[p], branch.radius[p],
+                           (branch.ends[0] if p[0] == 0 else None, branch.ends[1] if p[-1] == last else None))
+            for p in pieces if keep[p[0]] and len(p) >= 2]
 
 
 def _reversed(b: SkeletonBranch) -> SkeletonBranch:
@@ -323,8 +402,9 @@ def _joined(a: SkeletonBranch, c: SkeletonBranch) -> SkeletonBranch:
 def without_branches(skeleton: Skeleton, drop) -> tuple[Skeleton, list]:
     """The skeleton less the branches ``drop`` (indices), with the junctions they leave repaired.
 
-    A junction left with two branch ends joins those branches into one; with one end it becomes an
-    open end of that branch; with none it disappears.
+    A junction left with two branch ends joins those branches into one where one goes on from the
+    other (``MAX_JOIN_TURN``), else both ends are opened; a junction left with one end becomes an open
+    end of that branch; with none it disappears.
 
     Returns
     -------
@@ -340,14 +420,15 @@ def without_branches(skeleton: Skeleton, drop) -> tuple[Skeleton, list]:
             for e, j in enumerate(b.ends):
                 if j is not None:
                     ends_at.setdefault(j, []).append((n, e))
-        lonely = next((j for j, m in ends_at.items() if len(m) == 1), None)
+        opened = next((j for j, m in ends_at.items() if len(m) == 1 or (
+            len(m) == 2 and m[0][0] != m[1][0] and not _continues(*[(live[n][0], e) for n, e in m]))), None)
         pair = next((j for j, m in ends_at.items() if len(m) == 2 and m[0][0] != m[1][0]), None)
-        if lonely is not None:
-            (n, e), = ends_at[lonely]
-            b, _ = live[n]
-            ends = list(b.ends)
-            ends[e] = None
-            live[n] = (SkeletonBranch(b.points, b.weights, b.radius, tuple(ends), b.closed), None)
+        if opened is not None:
+            for n, e in ends_at[opened]:
+                b, _ = live[n]
+                ends = list(b.ends)
+                ends[e] = None
+                live[n] = (SkeletonBranch(b.points, b.weights, b.radius, tuple(ends), b.closed), None)
         elif pair is not None:
             (n, en), (m, em) = ends_at[pair]
             a, c = live[n][0], live[m][0]
