@@ -165,3 +165,42 @@ def test_a_pass_that_explains_little_of_its_subset_runs_again_denser(monkeypatch
     sizes.clear()
     pipeline._resolved(scan, None, {}, densify=False)
     assert sizes == [5_000]
+
+
+def _fit_along(points, ends):
+    """A pipe fit of radius 1 along the polyline ``points`` (interpolated), ending at junctions ``ends``."""
+    from scipy.interpolate import make_interp_spline
+
+    from canalsurf.pipeline import _BranchFit
+    from canalsurf.spine import constant_spline
+    from canalsurf.synth import _by_arclength
+
+    spine = _by_arclength(make_interp_spline(np.linspace(0, 1, len(points)), np.asarray(points, float), k=3)(
+        np.linspace(0, 1, 400)))
+    empty = np.empty(0)
+    return _BranchFit("pipe", spine, constant_spline(1.0), False, ends, 1.0, (1, 1), empty, empty, np.empty((0, 3)))
+
+
+def test_a_branch_that_folds_at_its_junction_is_left_out_and_the_rest_kept():
+    """Of a tee whose side branch turns back on itself (a hairpin), the run's two halves are kept with
+    their junction; with only one half left the junction becomes an open end; a scan of folds alone is
+    refused."""
+    from canalsurf.pipeline import _unfolded
+
+    def parts():
+        return (_fit_along([[-9, 0, 0], [-6, 0, 0], [-3, 0, 0], [0, 0, 0]], (None, 0)),
+                _fit_along([[0, 0, 0], [3, 0, 0], [6, 0, 0], [9, 0, 0]], (0, None)),
+                _fit_along([[0, 0, 0], [0, 4, 0], [0, 8, 0], [0.25, 9, 0], [0.5, 8, 0], [0.5, 4, 0]], (0, None)))
+
+    junction = np.zeros((1, 3))
+    left, right, hairpin = parts()
+    kept, points, why = _unfolded([left, right, hairpin], junction)
+    assert len(kept) == 2 and kept[0] is left and kept[1] is right
+    assert len(why) == 1 and "turns back" in why[0]
+    np.testing.assert_array_equal(points, junction)
+    assert left.ends == (None, 0) and right.ends == (0, None)
+    left, _, hairpin = parts()
+    kept, points, why = _unfolded([left, hairpin], junction)
+    assert len(kept) == 1 and kept[0] is left and left.ends == (None, None) and points.shape == (0, 3)
+    with pytest.raises(canalsurf.ReconstructionError, match="turns back on itself"):
+        _unfolded([parts()[2]], junction)

@@ -218,8 +218,9 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                                   **support)
     with timer("junctions"):
         fits, junction_points = _join_at_junctions(fits, skel)
+        fits, junction_points, left_out = _unfolded(fits, junction_points)
     with timer("residual"):
-        branches, summary = _check_and_describe(scan, fits, noise, junction_points)
+        branches, summary = _check_and_describe(scan, fits, noise, junction_points, left_out)
     network = _to_input_units(branches, junction_points, fits, scan)
     network.parameters = _reported_parameters(first.p, scan.scale, k=k, r0=first.r0, stop=stop,
                                               neighbours=neighbours, refine=refine)
@@ -1142,18 +1143,46 @@ def _join_at_junctions(fits: list, skel: Skeleton):
 # checks and the result
 
 
-def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: np.ndarray):
+def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray, list]:
+    """The branches less those whose spine folds once continued into its junctions, and why each of
+    those was left out; a junction left with one branch end becomes an open end, with none it goes.
+
+    Every branch was checked for folds before the junctions were placed (:func:`_quality`); a spine
+    continued into a junction that lies behind its end can fold.  A scene keeps its other tubes; a
+    scan whose every branch folds is refused.
+    """
+    reach = {j: JUNCTION_EXCLUSION_RADII * max(f.eq6 for f in fits if j in f.ends)
+             for f in fits for j in f.ends if j is not None}
+    kept, left_out = [], []
+    for fit in fits:
+        folded = fold(fit.spine, fit.radius, fit.closed,
+                      junctions=[(junction_points[j], reach[j]) for j in fit.ends if j is not None])
+        if folded:
+            left_out.append(folded)
+        else:
+            kept.append(fit)
+    if not kept:
+        raise ReconstructionError(f"{left_out[0]} — the model cannot be trusted; crop the scan to fewer tubes, "
+                                  "or report it with the input")
+    if left_out:
+        log.info("%d of %d branches fold once joined at their junctions (left out): %s", len(left_out),
+                 len(fits), left_out[0])
+        meeting = np.bincount([j for f in kept for j in f.ends if j is not None], minlength=len(junction_points))
+        used = np.flatnonzero(meeting >= 2)
+        renumber = {int(j): n for n, j in enumerate(used)}
+        for fit in kept:
+            fit.ends = tuple(None if j is None else renumber.get(j) for j in fit.ends)
+        junction_points = junction_points[used]
+    return kept, junction_points, left_out
+
+
+def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: np.ndarray,
+                        left_out: list = ()):
     """Per-branch diagnostics and the scan's: which points lie on a tube, how well, how seen, and the
-    quality each can be trusted with (:mod:`canalsurf.quality`)."""
+    quality each can be trusted with (:mod:`canalsurf.quality`); ``left_out`` says why tubes found were
+    left out of the model."""
     branches = []
     for i, fit in enumerate(fits):
-        folded = fold(fit.spine, fit.radius, fit.closed, junctions=[
-            (junction_points[j], JUNCTION_EXCLUSION_RADII * max(f.eq6 for f in fits if j in f.ends))
-            for j in fit.ends if j is not None])
-        if folded:
-            # Checked before the junctions too; continuing a spine into its junction must not fold it.
-            raise ReconstructionError(f"branch {i}: {folded} — the model cannot be trusted; "
-                                      "crop the scan to fewer tubes, or report it with the input")
         t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
         stray = is_stray(residual, fit.eq6)
         near = ~stray
@@ -1178,7 +1207,7 @@ def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: 
     coverage = [b.diagnostics["angular_coverage"] for b in branches]
     no_tube = float(1.0 - on.mean())
     level, reasons = scan_quality([(b.id, b.diagnostics["quality"], b.diagnostics["quality_reasons"])
-                                   for b in branches], no_tube)
+                                   for b in branches], no_tube, left_out)
     summary = {
         "quality": level, "quality_reasons": reasons,
         "n_residual_points": int(len(measured)),

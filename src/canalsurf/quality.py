@@ -165,7 +165,7 @@ def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, 
     return _summed(found)
 
 
-def scan_quality(branches: list, no_tube_share: float) -> tuple[str, list]:
+def scan_quality(branches: list, no_tube_share: float, left_out=()) -> tuple[str, list]:
     """Quality of a whole reconstruction: the worst of its branches', and the scan's own reasons.
 
     Parameters
@@ -174,8 +174,12 @@ def scan_quality(branches: list, no_tube_share: float) -> tuple[str, list]:
         ``(branch id, quality, reasons)`` of each branch.
     no_tube_share : float
         Share of the scan's points on no tube.
+    left_out : list of str
+        Why each tube that was found but could not be modelled was left out: at least ``check``, the
+        model is missing a tube.
     """
     found = [(q, f"branch {bid}: {why}") for bid, q, reasons in branches for why in reasons]
+    found += [("check", f"a tube was left out: {why}") for why in left_out]
     if no_tube_share > CHECK_NO_TUBE_SHARE:
         found.append(("check", f"{no_tube_share:.0%} of the points lie on no tube"))
     return _summed(found)
