@@ -204,3 +204,20 @@ def test_a_branch_that_folds_at_its_junction_is_left_out_and_the_rest_kept():
     assert len(kept) == 1 and kept[0] is left and left.ends == (None, None) and points.shape == (0, 3)
     with pytest.raises(canalsurf.ReconstructionError, match="turns back on itself"):
         _unfolded([parts()[2]], junction)
+
+
+@pytest.mark.parametrize(("tail_points", "ends", "cut"), [(50, (None, None), True), (50, (None, 0), False),
+                                                          (400, (None, None), False)])
+def test_a_few_points_past_a_long_gap_at_an_open_end_are_no_part_of_the_tube(tail_points, ends, cut):
+    """A tube 30 radii long with points over its first 60 % and a few more past a gap of 9 radii: those
+    few (under a tenth of the points) are strays its open end grew to, and are cut off; not at a
+    junction (the tube goes on there), nor when they are a real part of the tube."""
+    from canalsurf.pipeline import MAX_TAIL_SHARE, _stray_tail
+
+    rng = np.random.default_rng(0)
+    fit = _fit_along([[0, 0, 0], [10, 0, 0], [20, 0, 0], [30, 0, 0]], ends)
+    fit.t = np.r_[rng.uniform(0.0, 0.6, 900), rng.uniform(0.9, 1.0, tail_points)]
+    fit.residual = rng.normal(scale=0.01, size=len(fit.t))
+    assert (tail_points / (900 + tail_points) < MAX_TAIL_SHARE) == (tail_points == 50)
+    tail = _stray_tail(fit, ends)
+    np.testing.assert_array_equal(tail, (fit.t >= 0.9) & cut)

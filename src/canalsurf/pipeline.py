@@ -27,7 +27,7 @@ from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
 from .normals import estimate_normals, on_planes, point_inward
-from .quality import branch_quality, fold, scan_quality, support_gap
+from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, prefer_canal, principal_curvature
 from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
@@ -880,6 +880,31 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     return fit, idx
 
 
+#: Past a gap in its points longer than POOR_GAP_RADII radii, the part of a branch towards an open end
+#: that holds less than this share of its points is not the same tube: strays (clutter, another tube's
+#: end) its end grew to across the gap.  The branch is fitted again without them.
+MAX_TAIL_SHARE = 0.1
+
+
+def _stray_tail(fit: _BranchFit, ends: tuple) -> np.ndarray:
+    """Which of the fit's points lie past its widest gap, in a tail towards an open end (MAX_TAIL_SHARE)."""
+    tail = np.zeros(len(fit.t), bool)
+    if fit.closed or len(fit.t) < 2:
+        return tail
+    length = curve_length(fit.spine)
+    inlier = np.sort(fit.t[~is_stray(fit.residual, fit.eq6)])
+    if len(inlier) < 2:
+        return tail
+    widest = int(np.argmax(np.diff(inlier)))
+    if (inlier[widest + 1] - inlier[widest]) * length <= POOR_GAP_RADII * fit.eq6:
+        return tail
+    before = (widest + 1) / len(inlier)  # share of the inliers before the gap
+    for end, side, share in ((0, fit.t <= inlier[widest], before), (1, fit.t >= inlier[widest + 1], 1 - before)):
+        if ends[end] is None and share < MAX_TAIL_SHARE:
+            tail |= side
+    return tail
+
+
 def _fit_one(i: int, idx: np.ndarray, job: dict) -> _BranchFit | str:
     """Branch ``i`` fitted to its points ``idx`` (grown at its open ends) and checked; or why it is no tube.
 
@@ -892,6 +917,10 @@ def _fit_one(i: int, idx: np.ndarray, job: dict) -> _BranchFit | str:
         fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=job["refine"])
         if job["refine"]:
             fit, idx = _grow(points, fit, idx, i, estimates, job["curved"], job["kind"])
+            tail = _stray_tail(fit, estimates.skel.branches[i].ends)
+            if tail.any():
+                idx = idx[~tail]
+                fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=True)
     except ReconstructionError as exc:
         if len(estimates.guesses) == 1:
             raise
