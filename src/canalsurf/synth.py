@@ -2136,8 +2136,8 @@ def make_pole_scan(*, radius: float = 0.08, length: float = 2.0, vertical: bool 
 
 
 #: Families of :func:`random_case`.
-CASE_FAMILIES = ("tube", "segment", "trunk", "pole", "network")
-#: Networks :func:`random_case` draws from (the plant is too large for a quick case).
+CASE_FAMILIES = ("tube", "segment", "trunk", "pole", "network", "plant")
+#: Networks :func:`random_case` draws from for ``network`` (the plant is a family of its own).
 _CASE_NETWORKS = ("y-vessel", "t-junction", "tree", "rack", "crossing", "floor-clutter", "scene")
 
 
@@ -2150,7 +2150,9 @@ def random_case(family: str, seed: int):
     * ``trunk``: :func:`make_trunk`, radius 0.1 - 0.3, flare 20 - 70 %;
     * ``pole``: :func:`make_pole_scan`, radius 4 - 15 cm, 1,000 - 3,000 points on it, one scanner,
       1 cm quantisation;
-    * ``network``: a named network (not the plant), 15,000 - 40,000 points, noise 0.5 - 3 %.
+    * ``network``: a named network (not the plant), 15,000 - 40,000 points, noise 0.5 - 3 %;
+    * ``plant``: one bay of the plant (23 tubes of radii 0.5 - 2, racks, elbows, tees, a floor),
+      40,000 - 160,000 points, noise 0.5 - 3 %.
 
     Returns
     -------
@@ -2173,5 +2175,7 @@ def random_case(family: str, seed: int):
         return make_pole_scan(radius=rng.uniform(0.04, 0.15), length=rng.uniform(1.0, 3.0),
                               vertical=bool(rng.integers(2)), points=int(rng.integers(1000, 3001)),
                               distance=rng.uniform(3.0, 10.0), rng=rng)
+    if family == "plant":
+        return make_network("plant", n=int(rng.integers(40000, 160001)), noise=rng.uniform(0.005, 0.03), rng=rng)
     return make_network(str(rng.choice(_CASE_NETWORKS)), n=int(rng.integers(15000, 40001)),
                         noise=rng.uniform(0.005, 0.03), rng=rng)
