@@ -312,6 +312,12 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing) -> Skeleton:
     return Skeleton(branches, junctions, link)
 
 
+def _turn(into_before: np.ndarray, into_after: np.ndarray) -> np.ndarray:
+    """Degrees by which a path turns where it goes from the way ``into_before`` points back along it
+    to the way ``into_after`` points on (unit vectors, rows): 0 straight on, 180 turned back."""
+    cos = np.einsum("...i,...i->...", into_before, into_after)
+    return 180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
 
 def _inward(b: SkeletonBranch, end: int, radius: float) -> np.ndarray:
     """Unit direction from the branch's end ``end`` (0 or 1) into it (see END_DIRECTION_RADII)."""
@@ -325,8 +331,7 @@ def _inward(b: SkeletonBranch, end: int, radius: float) -> np.ndarray:
 def _continues(first: tuple, second: tuple) -> bool:
     """Whether two (branch, end) meeting at a junction go on one from the other (see MAX_JOIN_TURN)."""
     radius = max(float(np.median(b.radius)) for b, _ in (first, second))
-    cos = _inward(*first, radius) @ _inward(*second, radius)
-    return bool(180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= MAX_JOIN_TURN)
+    return bool(_turn(_inward(*first, radius), _inward(*second, radius)) <= MAX_JOIN_TURN)
 
 
 def _hairpins(branch: SkeletonBranch) -> list:
@@ -350,7 +355,7 @@ def _hairpins(branch: SkeletonBranch) -> list:
     after = pts[b] - pts[np.searchsorted(s, s[inner] + near)]
     before /= np.maximum(np.linalg.norm(before, axis=1, keepdims=True), 1e-300)
     after /= np.maximum(np.linalg.norm(after, axis=1, keepdims=True), 1e-300)
-    turn = 180.0 - np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", before, after), -1.0, 1.0)))
+    turn = _turn(before, after)
     along = before + after
     along /= np.maximum(np.linalg.norm(along, axis=1, keepdims=True), 1e-300)
     apart = pts[a] - pts[b]
