@@ -818,7 +818,7 @@ def _quality(fit: _BranchFit) -> dict:
     kappa = fit.kappa[~stray] if fit.kappa is not None and (~stray).any() else np.empty(0)
     curving = 1.0 / np.median(kappa) if len(kappa) and np.median(kappa) > 0 else np.inf
     return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum()),
-            "curving": float(curving), "fold": fold(fit.spine, fit.radius, fit.closed)}
+            "curving": float(curving), "eq6": fit.eq6, "fold": fold(fit.spine, fit.radius, fit.closed)}
 
 
 #: A branch whose radius exceeds this many times the median curvature radius of its own points
@@ -826,6 +826,10 @@ def _quality(fit: _BranchFit) -> dict:
 #: it on sparse, quantised one-sided scans, where curvature is underestimated) is several thinner
 #: tubes, or a coil, read as one wide tube.
 MAX_RADIUS_PER_CURVING = 2.5
+#: A branch whose radius exceeds this many times its Eq. (6) radius -- the mean distance its points
+#: moved to their thin images, which lie on a tube's spine -- is a fit that left its points' own scale:
+#: a wide tube through the tops of several thinner ones, or a circle through a narrow arc of points.
+MAX_RADIUS_PER_EQ6 = 2.5
 
 
 def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
@@ -851,6 +855,9 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     if q["radius"] > MAX_RADIUS_PER_CURVING * q["curving"]:
         return False, (f"the points curve far more tightly (radius {q['curving']:.2g}) than the one tube through "
                        f"them (radius {q['radius']:.2g}): thinner tubes side by side or a coil, not one tube")
+    if q["radius"] > MAX_RADIUS_PER_EQ6 * q["eq6"]:
+        return False, (f"the best tube (radius {q['radius']:.2g}) is far wider than the distance the points "
+                       f"moved to its spine (radius {q['eq6']:.2g}): not the tube the points came from")
     if q["rms"] > SCAN_NOISE_RATIO * noise and q["rms"] > TUBE_RELATIVE_RESIDUAL * q["radius"]:
         return False, (f"the points misfit the best tube by {q['rms'] / q['radius']:.0%} of its radius, "
                        + (f"{q['rms'] / noise:.0f} times the scan's own noise" if noise > 0
