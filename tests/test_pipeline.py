@@ -224,11 +224,13 @@ def test_a_few_points_past_a_long_gap_at_an_open_end_are_no_part_of_the_tube(tai
 
 
 def test_a_tube_far_wider_than_its_points_moved_is_no_tube():
-    """A fit whose radius is several times the Eq. (6) radius of its points (how far they moved to the
-    spine) left their scale; one near it is a tube."""
+    """A fit seen from one side whose radius is several times the Eq. (6) radius of its points (how
+    far they moved to the spine) left their scale; one near it, or one seen all round, is a tube."""
     from canalsurf.pipeline import MAX_RADIUS_PER_EQ6, _is_tube
 
-    q = {"rms": 0.01, "radius": 1.0, "round": 0.0, "n": 1000, "curving": 1.0, "fold": ""}
+    q = {"rms": 0.01, "radius": 1.0, "round": 0.0, "n": 1000, "curving": 1.0, "fold": "", "coverage": 170.0}
     assert _is_tube({**q, "eq6": 1.1}, noise=0.01) == (True, "")
     ok, why = _is_tube({**q, "eq6": 0.9 / MAX_RADIUS_PER_EQ6}, noise=0.01)
     assert not ok and "far wider than the distance the points moved" in why
+    # Seen all round, the points pin the circle: shrinking may have stopped short of the spine.
+    assert _is_tube({**q, "eq6": 0.9 / MAX_RADIUS_PER_EQ6, "coverage": 340.0}, noise=0.01) == (True, "")

@@ -817,8 +817,10 @@ def _quality(fit: _BranchFit) -> dict:
     out_of_round = roundness(fit.points[~stray], fit.spine, fit.t[~stray], fit.residual[~stray])
     kappa = fit.kappa[~stray] if fit.kappa is not None and (~stray).any() else np.empty(0)
     curving = 1.0 / np.median(kappa) if len(kappa) and np.median(kappa) > 0 else np.inf
+    coverage = angular_coverage(fit.points[~stray], fit.spine, fit.t[~stray])
     return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum()),
-            "curving": float(curving), "eq6": fit.eq6, "fold": fold(fit.spine, fit.radius, fit.closed)}
+            "curving": float(curving), "eq6": fit.eq6, "fold": fold(fit.spine, fit.radius, fit.closed),
+            "coverage": float(np.median(coverage)) if len(coverage) else 0.0}
 
 
 #: A branch whose radius exceeds this many times the median curvature radius of its own points
@@ -826,9 +828,10 @@ def _quality(fit: _BranchFit) -> dict:
 #: it on sparse, quantised one-sided scans, where curvature is underestimated) is several thinner
 #: tubes, or a coil, read as one wide tube.
 MAX_RADIUS_PER_CURVING = 2.5
-#: A branch whose radius exceeds this many times its Eq. (6) radius -- the mean distance its points
-#: moved to their thin images, which lie on a tube's spine -- is a fit that left its points' own scale:
-#: a wide tube through the tops of several thinner ones, or a circle through a narrow arc of points.
+#: A branch seen from one side (ONE_SIDED_DEGREES) whose radius exceeds this many times its Eq. (6)
+#: radius -- the mean distance its points moved to their thin images -- is a fit that left its points'
+#: own scale: a circle through a narrow arc, as through the tops of several thinner pipes side by side.
+#: Seen all round, the points pin the circle, and shrinking may have stopped short of the spine.
 MAX_RADIUS_PER_EQ6 = 2.5
 
 
@@ -855,7 +858,7 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     if q["radius"] > MAX_RADIUS_PER_CURVING * q["curving"]:
         return False, (f"the points curve far more tightly (radius {q['curving']:.2g}) than the one tube through "
                        f"them (radius {q['radius']:.2g}): thinner tubes side by side or a coil, not one tube")
-    if q["radius"] > MAX_RADIUS_PER_EQ6 * q["eq6"]:
+    if q["coverage"] < C.ONE_SIDED_DEGREES and q["radius"] > MAX_RADIUS_PER_EQ6 * q["eq6"]:
         return False, (f"the best tube (radius {q['radius']:.2g}) is far wider than the distance the points "
                        f"moved to its spine (radius {q['eq6']:.2g}): not the tube the points came from")
     if q["rms"] > SCAN_NOISE_RATIO * noise and q["rms"] > TUBE_RELATIVE_RESIDUAL * q["radius"]:
