@@ -339,18 +339,19 @@ def _hairpins(branch: SkeletonBranch) -> list:
 
     It turns by more than ``MAX_JOIN_TURN`` between its chords over ``END_DIRECTION_RADII`` of its
     (median) radius before and after the vertex, and those chords' far ends lie less than
-    ``HAIRPIN_LEGS_RADII`` of the larger radius there apart across the legs.
+    ``HAIRPIN_LEGS_RADII`` of the larger radius there apart across the legs.  Both legs reach past the
+    chords: a short hook at an end is a fold of one tube (``quality.fold``), not two tubes.
     """
     if branch.closed:
         return []
     pts, radius = branch.points, float(np.median(branch.radius))
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
     near, far = END_DIRECTION_RADII[0] * radius, END_DIRECTION_RADII[1] * radius
-    inner = np.flatnonzero((s >= near) & (s[-1] - s >= near))
+    inner = np.flatnonzero((s >= far) & (s[-1] - s >= far))
     if not len(inner):
         return []
     a = np.searchsorted(s, s[inner] - far)
-    b = np.minimum(np.searchsorted(s, s[inner] + far), len(pts) - 1)
+    b = np.searchsorted(s, s[inner] + far)
     before = pts[a] - pts[np.searchsorted(s, s[inner] - near, side="right") - 1]
     after = pts[b] - pts[np.searchsorted(s, s[inner] + near)]
     before /= np.maximum(np.linalg.norm(before, axis=1, keepdims=True), 1e-300)
