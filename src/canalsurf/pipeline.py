@@ -817,7 +817,9 @@ def _quality(fit: _BranchFit) -> dict:
     out_of_round = roundness(fit.points[~stray], fit.spine, fit.t[~stray], fit.residual[~stray])
     kappa = fit.kappa[~stray] if fit.kappa is not None and (~stray).any() else np.empty(0)
     curving = 1.0 / np.median(kappa) if len(kappa) and np.median(kappa) > 0 else np.inf
-    coverage = angular_coverage(fit.points[~stray], fit.spine, fit.t[~stray])
+    # Only a tube far wider than its Eq. (6) radius is judged by its coverage (MAX_RADIUS_PER_EQ6).
+    wide = mean_r > MAX_RADIUS_PER_EQ6 * fit.eq6
+    coverage = angular_coverage(fit.points[~stray], fit.spine, fit.t[~stray]) if wide else np.empty(0)
     return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum()),
             "curving": float(curving), "eq6": fit.eq6, "fold": fold(fit.spine, fit.radius, fit.closed),
             "coverage": float(np.median(coverage)) if len(coverage) else 0.0}
