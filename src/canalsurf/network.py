@@ -171,7 +171,7 @@ def n_branch_samples(branch: CanalModel) -> int:
     return max(MIN_BRANCH_SAMPLES, math.ceil(length / (SAMPLE_SPACING_PER_RADIUS * branch.mean_radius)) + 1)
 
 
-def classify_points(points: np.ndarray, branches: list, *, cut: list | None = None
+def classify_points(points: np.ndarray, branches: list, *, cut: list | None = None, far: bool = True
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Which branch each point lies on, and its signed distance from that branch's surface.
 
@@ -188,6 +188,10 @@ def classify_points(points: np.ndarray, branches: list, *, cut: list | None = No
         Each with ``diagnostics["noise_sigma"]`` (the robust deviation of its fit), unless ``cut``.
     cut : list of float, optional
         Outlier cut per branch, overriding the one from the diagnostics.
+    far : bool, default True
+        Also find the nearest surface of the points that lie on no tube.  With False their distance is
+        that from the nearest surface among the branches of their nearest samples only: the labels are
+        the same, and a scan that is mostly clutter is labelled far faster.
 
     Returns
     -------
@@ -237,7 +241,9 @@ def classify_points(points: np.ndarray, branches: list, *, cut: list | None = No
         todo = ~(candidates == i).any(axis=1)
         near = np.full(n, np.inf)
         tree = cKDTree(samples[i])
-        for group, bound in ((todo & (best <= limit), reach[i] + limit), (todo & (best > limit), np.inf)):
+        groups = (((todo & (best <= limit), reach[i] + limit), (todo & (best > limit), np.inf)) if far
+                  else ((todo, reach[i] + limit),))
+        for group, bound in groups:
             if group.any():
                 near[group] = tree.query(points[group], distance_upper_bound=bound, workers=-1)[0]
         try_branch(i, np.flatnonzero(near - reach[i] < best))

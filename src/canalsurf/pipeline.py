@@ -722,6 +722,9 @@ class _Estimates:
                 if j is not None:
                     largest[j] = max(largest[j], g["eq6"])
         self.junction_reach = JUNCTION_EXCLUSION_RADII * largest
+        # Made here, before the fits are spread over processes: each would otherwise make them all again.
+        for i in range(len(self.guesses)):
+            self.model(i)
 
     def replaced(self, i: int, guess: dict) -> _Estimates:
         """These estimates with branch ``i``'s replaced (the others' models are kept)."""
@@ -742,36 +745,30 @@ class _Estimates:
         return self._made[i]
 
 
-def _assign(points: np.ndarray, estimates: _Estimates, curved: np.ndarray, only: int | None = None) -> list:
-    """Indices of the points each branch is fitted to (of branch ``only`` alone, if given).
+def _assign(points: np.ndarray, estimates: _Estimates, curved: np.ndarray, i: int) -> np.ndarray:
+    """Indices of the points branch ``i`` is fitted to.
 
-    Each point goes to the branch whose first tube estimate -- continued straight for
+    A point goes to the branch whose first tube estimate -- continued straight for
     ``ASSIGN_END_RADII`` radii past its open ends, which the thin set may fall short of -- it lies
     nearest, if within ``ASSIGN_RADII`` of that branch's radii; points near a junction go to none
     (their surface belongs to several tubes).  Clutter (a floor under a pipe, a box beside it) is
     then no part of any fit, however much of the scan it is; nor is a point where the surface is
     flat (``curved`` False): ground beside a pipe that lies near it would otherwise pull a one-sided
-    fit towards a larger radius.  For one branch only the points and estimates near it are looked at,
-    so that the cost does not grow with the size of the scene.
+    fit towards a larger radius.  Only the points in the box of the branch's band, and the branches
+    whose bands reach into it, are looked at, so that the cost does not grow with the size of the scene.
     """
     guesses, junctions = estimates.guesses, estimates.skel.junctions
-    index = np.arange(len(guesses))
-    near = np.arange(len(points))
-    if only is not None:
-        # The points in the box of this branch's band, and the branches whose bands reach into it.
-        mine = estimates.model(only)[1]
-        boxes = np.array([estimates.model(i)[1] for i in index])
-        index = np.flatnonzero(np.all((boxes[:, 0] <= mine[1]) & (boxes[:, 1] >= mine[0]), axis=1))
-        near = np.flatnonzero(np.all((points >= mine[0]) & (points <= mine[1]), axis=1))
-    label, _ = classify_points(points[near], [estimates.model(i)[0] for i in index],
-                               cut=[ASSIGN_RADII * guesses[i]["eq6"] for i in index])
-    keep = curved[near].copy()
-    if len(junctions) and len(near):
+    mine = estimates.model(i)[1]
+    boxes = np.array([estimates.model(j)[1] for j in range(len(guesses))])
+    index = np.flatnonzero(np.all((boxes[:, 0] <= mine[1]) & (boxes[:, 1] >= mine[0]), axis=1))
+    near = np.flatnonzero(np.all((points >= mine[0]) & (points <= mine[1]), axis=1))
+    label, _ = classify_points(points[near], [estimates.model(j)[0] for j in index],
+                               cut=[ASSIGN_RADII * guesses[j]["eq6"] for j in index], far=False)
+    keep = curved[near] & (label == i)
+    if len(junctions) and keep.any():
         for hits in cKDTree(points[near]).query_ball_point(junctions, estimates.junction_reach):
             keep[hits] = False
-    if only is not None:
-        return near[(label == only) & keep]
-    return [near[(label == i) & keep] for i in range(len(guesses))]
+    return near[keep]
 
 
 def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> _BranchFit:
@@ -887,7 +884,7 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
         length, grown = curve_length(g["spine"]), curve_length(fit.spine)
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
         estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
-        idx = _assign(points, estimates, curved, only=i)
+        idx = _assign(points, estimates, curved, i)
         fit = _fit_branch(points[idx], estimates.guesses[i], kind=kind, refine=True)
     return fit, idx
 
@@ -917,12 +914,14 @@ def _stray_tail(fit: _BranchFit, ends: tuple) -> np.ndarray:
     return tail
 
 
-def _fit_one(i: int, idx: np.ndarray, job: dict) -> _BranchFit | str:
-    """Branch ``i`` fitted to its points ``idx`` (grown at its open ends) and checked; or why it is no tube.
+def _fit_one(i: int, job: dict) -> _BranchFit | str:
+    """Branch ``i`` fitted to its points (:func:`_assign`, grown at its open ends) and checked; or why it
+    is no tube.
 
     ``job`` holds what every branch's fit shares (see :func:`_fit_network`).
     """
     points, estimates = job["points"], job["estimates"]
+    idx = _assign(points, estimates, job["curved"], i)
     if len(idx) < C.POINTS_PER_SEGMENT:
         return f"only {len(idx)} points lie near the first estimate of a tube"
     try:
@@ -947,8 +946,8 @@ PARALLEL_BRANCHES = 8
 _JOB: dict = {}
 
 
-def _fit_in_worker(task: tuple) -> _BranchFit | str:
-    return _fit_one(*task, _JOB)
+def _fit_in_worker(i: int) -> _BranchFit | str:
+    return _fit_one(i, _JOB)
 
 
 def _quiet_worker() -> None:
@@ -964,7 +963,7 @@ def _cores() -> int:
 
 
 def _fit_all(tasks: list, job: dict) -> list:
-    """:func:`_fit_one` of every (branch, points) task; over the cores in forked processes (Linux) when
+    """:func:`_fit_one` of every branch in ``tasks``; over the cores in forked processes (Linux) when
     there are many, so that a scene's hundreds of branches take a share of the time.  Each fit depends
     on its task alone, so the results are the same either way."""
     import multiprocessing  # only for a scene: a single tube's run does not pay for the import
@@ -972,7 +971,7 @@ def _fit_all(tasks: list, job: dict) -> list:
 
     cores = _cores()
     if len(tasks) < PARALLEL_BRANCHES or cores < 2 or "fork" not in multiprocessing.get_all_start_methods():
-        return [_fit_one(i, idx, job) for i, idx in tasks]
+        return [_fit_one(i, job) for i in tasks]
     global _JOB
     _JOB = job
     try:
@@ -1054,12 +1053,11 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     fits = [None] * len(skel.branches)
     for _ in range(MAX_FIT_ROUNDS):
         estimates = _Estimates([_first_guess(b) for b in skel.branches], skel)
-        parts = _assign(points, estimates, curved)
         job = {"points": points, "estimates": estimates, "curved": curved, "kappa": kappa, "kind": kind,
                "refine": refine, "noise": noise, "quantum": quantum}
         todo = [i for i, f in enumerate(fits) if f is None]
         reason = ""
-        for i, fit in zip(todo, _fit_all([(i, parts[i]) for i in todo], job)):
+        for i, fit in zip(todo, _fit_all(todo, job)):
             if isinstance(fit, str):
                 reason, fit = fit, False
             fits[i] = fit
