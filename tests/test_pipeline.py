@@ -228,9 +228,24 @@ def test_a_tube_far_wider_than_its_points_moved_is_no_tube():
     far they moved to the spine) left their scale; one near it, or one seen all round, is a tube."""
     from canalsurf.pipeline import MAX_RADIUS_PER_EQ6, _is_tube
 
-    q = {"rms": 0.01, "radius": 1.0, "round": 0.0, "n": 1000, "curving": 1.0, "fold": "", "coverage": 170.0}
+    q = {"rms": 0.01, "radius": 1.0, "round": 0.0, "n": 1000, "curving": 1.0, "fold": "", "coverage": 170.0,
+         "radius_range": (1.0, 1.0)}
     assert _is_tube({**q, "eq6": 1.1}, noise=0.01) == (True, "")
     ok, why = _is_tube({**q, "eq6": 0.9 / MAX_RADIUS_PER_EQ6}, noise=0.01)
     assert not ok and "far wider than the distance the points moved" in why
     # Seen all round, the points pin the circle: shrinking may have stopped short of the spine.
     assert _is_tube({**q, "eq6": 0.9 / MAX_RADIUS_PER_EQ6, "coverage": 340.0}, noise=0.01) == (True, "")
+
+
+def test_a_radius_that_changes_many_fold_is_no_tube():
+    """A canal whose radius goes from a pipe's to dozens of times it (a cone through a pipe's end and
+    the clutter past it, as fitted in a sparse plant) is no tube; one within MAX_RADIUS_RATIO is."""
+    from canalsurf.constants import MAX_RADIUS_RATIO
+    from canalsurf.pipeline import _is_tube
+
+    q = {"rms": 0.01, "radius": 1.0, "round": 0.0, "n": 1000, "curving": 1.0, "fold": "", "coverage": 340.0,
+         "eq6": 1.0}
+    assert _is_tube({**q, "radius_range": (0.5, 0.49 * MAX_RADIUS_RATIO)}, noise=0.01) == (True, "")
+    for low, high in ((0.5, 0.51 * MAX_RADIUS_RATIO), (0.81, 67.8), (-0.1, 1.5)):
+        ok, why = _is_tube({**q, "radius_range": (low, high)}, noise=0.01)
+        assert not ok and "not one tube" in why

@@ -98,3 +98,14 @@ def test_prefer_canal_needs_both_bic_and_variation():
     # A tiny improvement does not pay for the extra parameters: BIC gain n log(1.001) < 8 log n.
     assert prefer_canal(100.0, 100.0 / 1.001, 2000, 8, varying) is False
     assert prefer_canal(100.0, 0.0, 2000, 8, varying) is True
+
+
+def test_prefer_canal_needs_a_plausible_radius():
+    """A radius that varies more than MAX_RADIUS_RATIO-fold, or reaches zero, is no canal, however well
+    it fits: a cone through a pipe's end and the clutter beyond."""
+    from canalsurf.constants import MAX_RADIUS_RATIO
+
+    t = np.linspace(0.0, 1.0, 200)
+    assert prefer_canal(100.0, 10.0, 2000, 8, 1.0 + (0.99 * MAX_RADIUS_RATIO - 1.0) * t) is True
+    assert prefer_canal(100.0, 10.0, 2000, 8, 1.0 + (1.01 * MAX_RADIUS_RATIO - 1.0) * t) is False
+    assert prefer_canal(100.0, 10.0, 2000, 8, 1.0 - 1.01 * t) is False

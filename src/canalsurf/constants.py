@@ -88,6 +88,11 @@ MIN_SIGMA_PER_RADIUS = 0.01
 #: A radius function is kept (kind "canal") only if it varies by more than this share of its mean
 #: (besides winning on the Bayesian information criterion).
 CANAL_MIN_VARIATION = 0.05
+#: ... and by at most this factor between its narrowest and widest: one pass of shrinking works at one
+#: scale, and the canals it resolves vary by a few times at most (the paper's by 2.25, a tree's stem by
+#: 1.5).  A radius that goes from a pipe's to dozens of times it is a cone fitted through a pipe's end
+#: and the clutter beyond, and one that reaches zero is no tube.
+MAX_RADIUS_RATIO = 6.0
 
 # --- pipeline -------------------------------------------------------------------------------------
 #: mu of Algorithm 2 under the automatic stop: keep shrinking until nearly all points stopped (the

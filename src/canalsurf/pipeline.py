@@ -28,7 +28,7 @@ from .model import CanalModel
 from .network import Junction, Network, classify_points
 from .normals import estimate_normals, on_planes, point_inward
 from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
-from .radius import curvature_radius, prefer_canal, principal_curvature
+from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
@@ -809,7 +809,8 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
 def _quality(fit: _BranchFit) -> dict:
     """Inlier RMS distance, mean radius and out-of-roundness of a fitted branch (normalised units)."""
     stray = is_stray(fit.residual, fit.eq6)
-    mean_r = float(np.mean(fit.radius(np.linspace(0, 1, 200))))
+    radii = fit.radius(np.linspace(0, 1, 200))
+    mean_r = float(np.mean(radii))
     inlier_rms = float(np.sqrt(np.mean(fit.residual[~stray] ** 2))) if (~stray).any() else np.inf
     out_of_round = roundness(fit.points[~stray], fit.spine, fit.t[~stray], fit.residual[~stray])
     kappa = fit.kappa[~stray] if fit.kappa is not None and (~stray).any() else np.empty(0)
@@ -819,7 +820,8 @@ def _quality(fit: _BranchFit) -> dict:
     coverage = angular_coverage(fit.points[~stray], fit.spine, fit.t[~stray]) if wide else np.empty(0)
     return {"rms": inlier_rms, "radius": mean_r, "round": out_of_round, "n": int((~stray).sum()),
             "curving": float(curving), "eq6": fit.eq6, "fold": fold(fit.spine, fit.radius, fit.closed),
-            "coverage": float(np.median(coverage)) if len(coverage) else 0.0}
+            "coverage": float(np.median(coverage)) if len(coverage) else 0.0,
+            "radius_range": (float(radii.min()), float(radii.max()))}
 
 
 #: A branch whose radius exceeds this many times the median curvature radius of its own points
@@ -854,6 +856,10 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
                        f"{q['round'] / q['radius']:.0%} of the radius off the best tube")
     if q["fold"]:
         return False, q["fold"]
+    if not plausible_radius(np.array(q["radius_range"])):
+        low, high = q["radius_range"]
+        return False, (f"the radius goes from {low:.2g} to {high:.2g} along the tube, more than "
+                       f"{C.MAX_RADIUS_RATIO:g} times: not one tube")
     if q["radius"] > MAX_RADIUS_PER_CURVING * q["curving"]:
         return False, (f"the points curve far more tightly (radius {q['curving']:.2g}) than the one tube through "
                        f"them (radius {q['radius']:.2g}): thinner tubes side by side or a coil, not one tube")

@@ -7,7 +7,8 @@ around the tube), from a least-squares fit of the normal differences of each nei
 After shrinking and thinning, the paper's radius is the mean distance between each input point and
 its thinned image (Eq. 6); for a canal the per-point radii ``r_i`` are fitted by a smoothing spline.
 Whether a tube is a pipe or a canal is decided by the Bayesian information criterion of the two fits,
-and a radius function must also vary by more than ``CANAL_MIN_VARIATION`` of its mean.
+and a radius function must also vary by more than ``CANAL_MIN_VARIATION`` of its mean, and by no more
+than ``MAX_RADIUS_RATIO`` times.
 """
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import CANAL_MIN_VARIATION
+from .constants import CANAL_MIN_VARIATION, MAX_RADIUS_RATIO
 
-__all__ = ["principal_curvature", "curvature_radius", "pipe_radius", "prefer_canal"]
+__all__ = ["principal_curvature", "curvature_radius", "pipe_radius", "prefer_canal", "plausible_radius"]
 
 
 def principal_curvature(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
@@ -112,4 +113,10 @@ def prefer_canal(rss_pipe: float, rss_canal: float, n: int, extra_parameters: in
         return True
     bic_gain = n * np.log(max(rss_pipe, 1e-300) / rss_canal) - extra_parameters * np.log(n)
     variation = np.ptp(radius_samples) / np.mean(radius_samples)
-    return bool(bic_gain > 0 and variation > CANAL_MIN_VARIATION)
+    return bool(bic_gain > 0 and variation > CANAL_MIN_VARIATION and plausible_radius(radius_samples))
+
+
+def plausible_radius(radius_samples: np.ndarray) -> bool:
+    """Whether a radius sampled along a tube stays positive and within ``MAX_RADIUS_RATIO`` of itself."""
+    low = float(np.min(radius_samples))
+    return low > 0 and float(np.max(radius_samples)) <= MAX_RADIUS_RATIO * low
