@@ -249,3 +249,35 @@ def test_a_radius_that_changes_many_fold_is_no_tube():
     for low, high in ((0.5, 0.51 * MAX_RADIUS_RATIO), (0.81, 67.8), (-0.1, 1.5)):
         ok, why = _is_tube({**q, "radius_range": (low, high)}, noise=0.01)
         assert not ok and "not one tube" in why
+
+
+def test_a_scene_measures_its_noise_on_its_tubes():
+    """With SCENE_NOISE_BRANCHES fitted tubes and more, their median inlier RMS is the noise, when it
+    is below the scan's (whose planes a sparse subset bends); with fewer, the scan's noise stands."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import SCENE_NOISE_BRANCHES, _scene_noise
+
+    fits = [SimpleNamespace(rms=r) for r in (0.01, 0.02, 0.015, 0.3, 0.012)]
+    assert len(fits) == SCENE_NOISE_BRANCHES
+    assert _scene_noise(fits, 0.4) == pytest.approx(0.015)
+    assert _scene_noise(fits, 0.005) == 0.005
+    assert _scene_noise(fits[:-1] + [False, None], 0.4) == 0.4  # left out or not fitted: not counted
+
+
+def test_a_canal_across_a_gap_in_its_points_is_gapped():
+    """A fit whose points leave more than POOR_GAP_RADII radii of its spine bare has its radius fitted
+    to nothing there (a canal across it joined two tubes); a shorter gap is a scan's own."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _gapped
+    from canalsurf.quality import POOR_GAP_RADII
+    from canalsurf.spine import pspline_fit
+
+    spine = pspline_fit(np.linspace(0.0, 1.0, 50), np.c_[np.linspace(0.0, 20.0, 50), np.zeros((50, 2))], n_segments=4)
+    rng = np.random.default_rng(0)
+    for gap, gapped in ((0.9 * POOR_GAP_RADII, False), (1.1 * POOR_GAP_RADII, True)):
+        t = rng.uniform(0.0, 1.0, 4000)
+        t = t[(t < 0.5) | (t > 0.5 + gap / 20.0)]
+        fit = SimpleNamespace(t=t, residual=rng.normal(0.0, 0.01, len(t)), spine=spine)
+        assert _gapped(fit, 1.0, closed=False) is gapped

@@ -121,6 +121,8 @@ class _BranchFit:
     t: np.ndarray
     points: np.ndarray
     kappa: np.ndarray | None = None
+    rms: float = np.inf  # inlier RMS distance from the surface and mean radius, once checked (_quality)
+    mean_radius: float = np.nan
 
 
 def _segments(length: float, spacing: float, n_points: int) -> int:
@@ -220,7 +222,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         fits, junction_points = _join_at_junctions(fits, skel)
         fits, junction_points, left_out = _unfolded(fits, junction_points)
     with timer("residual"):
-        branches, summary = _check_and_describe(scan, fits, noise, junction_points, left_out)
+        branches, summary = _check_and_describe(scan, fits, _scene_noise(fits, noise), junction_points, left_out)
     network = _to_input_units(branches, junction_points, fits, scan)
     network.parameters = _reported_parameters(first.p, scan.scale, k=k, r0=first.r0, stop=stop,
                                               neighbours=neighbours, refine=refine)
@@ -791,6 +793,8 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
             rss = {name: float(np.minimum(f.residual**2, cut**2).sum()) for name, f in fits.items()}
             samples = fits["canal"].radius(np.linspace(0, 1, 200))
             kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(points), rseg + 2, samples) else "pipe"
+            if kind == "canal" and _gapped(fits["canal"], float(np.mean(samples)), closed):
+                kind = "pipe"
         fit = fits[kind]
         return _BranchFit(kind, fit.spine, fit.radius, closed, (None, None), eq6, (nseg, rseg),
                           fit.residual, fit.t, points)
@@ -804,6 +808,17 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
         radius_fn = constant_spline(eq6)
     t, residual = footpoints(points, spine, radius_fn, closed=closed)
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
+
+
+def _gapped(fit, radius: float, closed: bool) -> bool:
+    """Whether a refined fit's points leave a gap of more than POOR_GAP_RADII radii along its spine.
+
+    A radius function is fitted to nothing across such a gap: a canal there joins two tubes' radii (the
+    ends of two pipes of a sparse plant, bridged by a canal 0.8 radii off either), and is no evidence
+    that the radius changes.
+    """
+    near = ~is_stray(fit.residual, radius)
+    return support_gap(fit.t[near], curve_length(fit.spine), closed) > POOR_GAP_RADII * radius
 
 
 def _quality(fit: _BranchFit) -> dict:
@@ -943,7 +958,9 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
             raise
         return str(exc).split(" — ")[0]
     fit.kappa = job["kappa"][idx]
-    ok, why = _is_tube(_quality(fit), job["noise"], job["quantum"])
+    q = _quality(fit)
+    fit.rms, fit.mean_radius = q["rms"], q["radius"]
+    ok, why = _is_tube(q, job["noise"], job["quantum"])
     return fit if ok else why
 
 
@@ -1047,6 +1064,25 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
         out.append(live[worst])
 
 
+#: A scene of at least this many fitted tubes measures its noise on them: the median of their inlier RMS
+#: distances, where that is below the scan's noise.
+SCENE_NOISE_BRANCHES = 5
+
+
+def _scene_noise(fits: list, noise: float) -> float:
+    """The noise a fit is judged against: the scan's (:func:`_scan_noise`), or in a scene of
+    SCENE_NOISE_BRANCHES tubes and more the median inlier RMS of their fits, if lower.
+
+    The scan's noise is the points' scatter about their local planes, which on a subset too sparse
+    for its thinner tubes takes in their curvature (twenty times the noise on a sparse plant of two bays):
+    a fit through clutter then passes.  The scene's tubes, fitted, show the noise itself.
+    """
+    rms = [f.rms for f in fits if f and np.isfinite(f.rms)]
+    if len(rms) < SCENE_NOISE_BRANCHES:
+        return noise
+    return min(noise, float(np.median(rms)))
+
+
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
                  quantum: float, curved: np.ndarray, kappa: np.ndarray):
     """Fit every branch; drop those that are no tube and join the branches they separated.
@@ -1069,6 +1105,11 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             fits[i] = fit
         for i in _inside_others(fits, skel):
             reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
+        scene = _scene_noise(fits, noise)
+        for i, fit in enumerate(fits):
+            if fit and fit.rms > SCAN_NOISE_RATIO * scene and fit.rms > TUBE_RELATIVE_RESIDUAL * fit.mean_radius:
+                reason, fits[i] = (f"the points misfit the best tube {fit.rms / scene:.0f} times as much as the "
+                                   "scene's other tubes"), False
         drop = [i for i, f in enumerate(fits) if f is False]
         if not drop:
             break
