@@ -29,7 +29,7 @@ from .network import Junction, Network, classify_points
 from .normals import estimate_normals, on_planes, point_inward
 from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
-from .refine import extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
+from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
 from .spine import arclength_reparametrize, constant_spline, curve_length, pspline_fit
@@ -810,7 +810,7 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
 
 
-def _gapped(fit, radius: float, closed: bool) -> bool:
+def _gapped(fit: RefineResult, radius: float, closed: bool) -> bool:
     """Whether a refined fit's points leave a gap of more than POOR_GAP_RADII radii along its spine.
 
     A radius function is fitted to nothing across such a gap: a canal there joins two tubes' radii (the
@@ -881,11 +881,17 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     if q["coverage"] < C.ONE_SIDED_DEGREES and q["radius"] > MAX_RADIUS_PER_EQ6 * q["eq6"]:
         return False, (f"the best tube (radius {q['radius']:.2g}) is far wider than the distance the points "
                        f"moved to its spine (radius {q['eq6']:.2g}): not the tube the points came from")
-    if q["rms"] > SCAN_NOISE_RATIO * noise and q["rms"] > TUBE_RELATIVE_RESIDUAL * q["radius"]:
+    if _misfits(q["rms"], q["radius"], noise):
         return False, (f"the points misfit the best tube by {q['rms'] / q['radius']:.0%} of its radius, "
                        + (f"{q['rms'] / noise:.0f} times the scan's own noise" if noise > 0
                           else "and the scan has no noise"))
     return True, ""
+
+
+def _misfits(rms: float, radius: float, noise: float) -> bool:
+    """Whether a tube's inlier RMS is more than SCAN_NOISE_RATIO times the ``noise`` and more than
+    TUBE_RELATIVE_RESIDUAL of its radius: a tube fitted to clutter, not a scanned tube."""
+    return rms > SCAN_NOISE_RATIO * noise and rms > TUBE_RELATIVE_RESIDUAL * radius
 
 
 def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimates: _Estimates,
@@ -1107,7 +1113,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
         scene = _scene_noise(fits, noise)
         for i, fit in enumerate(fits):
-            if fit and fit.rms > SCAN_NOISE_RATIO * scene and fit.rms > TUBE_RELATIVE_RESIDUAL * fit.mean_radius:
+            if fit and _misfits(fit.rms, fit.mean_radius, scene):
                 reason, fits[i] = (f"the points misfit the best tube {fit.rms / scene:.0f} times as much as the "
                                    "scene's other tubes"), False
         drop = [i for i, f in enumerate(fits) if f is False]
