@@ -744,6 +744,11 @@ _MAX_LAS_VLRS = 65_535
 _MAX_LAZ_POINTS_PER_BYTE = 500
 #: Points decoded at a time, so memory follows the points a file really holds, not what it claims.
 _LAS_CHUNK_POINTS = 1 << 20
+#: Points of a LAZ file decoded at once, by laspy's parallel decoder: two to three of LASzip's 50,000-point
+#: chunks, which two cores decode in little more than half the time of the one-thread decoder (10^7
+#: points: 1.2 s against 2.1 s; 1.1 s at 2**18 or more, in twice the memory), in 4.5 MB of records
+#: (point format 3).
+_LAZ_DECODE_POINTS = 1 << 17
 #: The variable-length record that describes LASzip compression.
 _LASZIP_USER_ID, _LASZIP_RECORD_ID = b"laszip encoded", 22204
 #: Layers of each "layered" LASzip item (LAS 1.4 point formats 6 - 10), by item type: Point14 (x, y
@@ -951,14 +956,16 @@ def _las_chunks(path: pathlib.Path, chunk: int) -> Iterator[tuple[np.ndarray, np
         _check_laz_chunks(path, layout, _import_extra("lazrs", ".laz", "las"), what)
     held = 0
     with _translating(path, what, fix), _library_logs("laspy"):
-        # the single-threaded decoder: it decodes chunk by chunk as the points are asked for
-        backend = laspy.LazBackend.Lazrs if layout.compressed else None
+        # LASzip's chunks decoded over the cores, _LAZ_DECODE_POINTS at a time, handed out ``chunk`` at
+        # a time
+        backend = laspy.LazBackend.LazrsParallel if layout.compressed else None
         with laspy.open(path, laz_backend=backend) as reader:
             header = reader.header
             names = {name.lower(): name for name in header.point_format.extra_dimension_names}
             spelling = next((s for s in _LAS_NORMALS if all(n in names for n in s)), None)
             scales, offsets = header.scales, header.offsets
-            for records in reader.chunk_iterator(chunk):
+            decoded = reader.chunk_iterator(max(chunk, _LAZ_DECODE_POINTS) if layout.compressed else chunk)
+            for records in (part[start:start + chunk] for part in decoded for start in range(0, len(part), chunk)):
                 # errstate: extra dimensions with odd scales may overflow; the result is then refused
                 # as non-finite.  Held only here, not while the caller has the chunk.
                 with np.errstate(all="ignore"):
