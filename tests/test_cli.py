@@ -657,7 +657,7 @@ def test_options_reach_reconstruct(cloud, tmp_path, capsys, monkeypatch):
     assert callable(first.pop("progress")) and callable(second.pop("progress"))
     assert first.pop("normals").shape == (2000, 3)  # the file's normals are used
     assert first == {"kind": "canal", "R": 0.3, "delta": 0.04, "mu": 0.8, "tau": 0.2, "H": 0.5, "k": 12,
-                     "stop": "paper", "neighbours": "gauss", "refine": False}
+                     "stop": "paper", "neighbours": "gauss", "refine": False, "client": None}
     assert second["normals"] is None
     assert second["kind"] == "auto" and second["R"] is None and second["refine"] is True
 

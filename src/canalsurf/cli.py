@@ -423,6 +423,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "with --voxel or when a large file is sampled: they are then read again, in chunks) "
                         "with the branch each lies on (-1: on no tube) and its signed distance from the "
                         "surface, to colour or split the scan")
+    g = p.add_argument_group("Dask (needs the 'dask' extra: pip install 'canalsurf[dask]')")
+    g.add_argument("--dask", nargs="?", const="", metavar="ADDRESS",
+                   help="fit the branches, and label the points of a large file, as Dask tasks: on a local "
+                        "cluster of one worker process per core, or on the running scheduler at ADDRESS "
+                        "(tcp://host:8786; canalsurf installed on its workers); the files written are the "
+                        "same as without")
     _add_export_options(p)
     _add_global_options(p, in_subcommand=True)
     p.set_defaults(handler=_cmd_reconstruct)
@@ -725,7 +731,7 @@ def _dxf_available() -> bool:
 
 def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_points=None,
                   source: str | None = None, label_points=None,
-                  label_chunks: tuple[int, Callable[[], Iterator[np.ndarray]]] | None = None,
+                  label_chunks: tuple[int, Callable[[], Iterator[np.ndarray]]] | None = None, client=None,
                   units: str | None = None, exports: dict | None = None, catalogue: str | None = None,
                   plotly_js: str | None = None, scan_points=None) -> dict[str, Callable]:
     """Everything a reconstruction writes, computed now; name -> ``write(path)`` callables.
@@ -779,7 +785,13 @@ def _output_files(model, *, mesh_format: str = "ply", caps: bool = True, report_
 
         def write_labels(path: Path) -> None:
             log.info("%s: labelling %d points a chunk at a time", source, count)
-            write_labelled_chunks(path, count, ((points, *model.classify(points)) for points in chunks()))
+            if client is None:
+                labelled = ((points, *model.classify(points)) for points in chunks())
+            else:
+                from .cluster import labelled_chunks
+
+                labelled = labelled_chunks(client, model, chunks())
+            write_labelled_chunks(path, count, labelled)
 
         files["points.ply"] = write_labels
     if report_points is not None:
@@ -1065,8 +1077,6 @@ def _prepared_text(record: dict) -> str:
 
 
 def _cmd_reconstruct(args, console: _Console) -> int:
-    from .io import iter_point_chunks, read_points_sample
-
     if args.mesh_format != "ply":
         try:
             importlib.import_module("trimesh")
@@ -1080,7 +1090,20 @@ def _cmd_reconstruct(args, console: _Console) -> int:
     not_written, notes = _run_notes(args, exports)
     options = {"kind": args.kind, "R": args.R, "delta": args.delta, "mu": args.mu, "tau": args.tau,
                "H": args.H, "k": args.k, "stop": args.stop, "neighbours": args.neighbours,
-               "refine": args.refine}
+               "refine": args.refine, "client": None}
+    if args.dask is None:
+        return _reconstruct_inputs(args, console, options, exports, not_written, notes)
+    from .cluster import connect
+
+    with connect(args.dask or None) as client:
+        return _reconstruct_inputs(args, console, options | {"client": client}, exports, not_written, notes)
+
+
+def _reconstruct_inputs(args, console: _Console, options: dict, exports: dict, not_written: dict,
+                        notes: list) -> int:
+    """Reconstruct every input of ``canalsurf reconstruct``; the worst exit code."""
+    from .io import iter_point_chunks, read_points_sample
+
     several = len(args.inputs) > 1
     # Reports of a batch share one plotly.js in OUTDIR (4.6 MB each otherwise); one report stands alone.
     shared_js = several and args.report
@@ -1113,7 +1136,7 @@ def _cmd_reconstruct(args, console: _Console) -> int:
             files = _output_files(model, mesh_format=args.mesh_format, caps=args.caps,
                                   report_points=points if args.report else None, source=str(path),
                                   label_points=region if args.labels and not sampled else None,
-                                  label_chunks=label_chunks, units=args.units,
+                                  label_chunks=label_chunks, client=options["client"], units=args.units,
                                   exports=exports, catalogue=args.catalogue, scan_points=points,
                                   plotly_js=f"../{_plotly_js_name()}" if shared_js else None)
             try:

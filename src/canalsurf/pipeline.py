@@ -133,7 +133,7 @@ def _segments(length: float, spacing: float, n_points: int) -> int:
 def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = None,
                 delta: float | None = None, mu: float | None = None, tau: float | None = None,
                 H: float | None = None, k: int | None = None, stop: str = "auto",
-                neighbours: str = "kdtree", refine: bool = True, progress=None) -> Network:
+                neighbours: str = "kdtree", refine: bool = True, progress=None, client=None) -> Network:
     """Reconstruct the pipe and canal surfaces of an unorganized point cloud: one tube or a network.
 
     Parameters
@@ -165,6 +165,10 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         ``r_i``.
     progress : callable, optional
         Called with the name of each stage (see ``STAGES``) as it starts.
+    client : distributed.Client, optional
+        Fit the branches as Dask tasks on this client's workers (:func:`canalsurf.cluster.connect`),
+        one task per branch.  The result is the same as without.  Default: in this process, or over
+        the cores in forked processes when a scene has many branches.
 
     Returns
     -------
@@ -217,7 +221,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     fit_pts, support = _fit_points(scan, passes, len(skel.branches))
     with timer("fit"):
         skel, fits = _fit_network(fit_pts, skel, kind=kind, refine=refine, noise=noise, quantum=quantum,
-                                  **support)
+                                  client=client, **support)
     with timer("junctions"):
         fits, junction_points = _join_at_junctions(fits, skel)
         fits, junction_points, left_out = _unfolded(fits, junction_points)
@@ -991,13 +995,18 @@ def _cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
 
 
-def _fit_all(tasks: list, job: dict) -> list:
-    """:func:`_fit_one` of every branch in ``tasks``; over the cores in forked processes (Linux) when
-    there are many, so that a scene's hundreds of branches take a share of the time.  Each fit depends
-    on its task alone, so the results are the same either way."""
+def _fit_all(tasks: list, job: dict, client=None) -> list:
+    """:func:`_fit_one` of every branch in ``tasks``: as Dask tasks on ``client``'s workers if given,
+    else over the cores in forked processes (Linux) when there are many, so that a scene's hundreds of
+    branches take a share of the time.  Each fit depends on its task alone, so the results are the
+    same every way."""
     import multiprocessing  # only for a scene: a single tube's run does not pay for the import
     from concurrent.futures import ProcessPoolExecutor
 
+    if client is not None:
+        from .cluster import map_in_order
+
+        return list(map_in_order(client, _fit_one, tasks, job))
     cores = _cores()
     if len(tasks) < PARALLEL_BRANCHES or cores < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return [_fit_one(i, job) for i in tasks]
@@ -1090,13 +1099,13 @@ def _scene_noise(fits: list, noise: float) -> float:
 
 
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
-                 quantum: float, curved: np.ndarray, kappa: np.ndarray):
+                 quantum: float, curved: np.ndarray, kappa: np.ndarray, client=None):
     """Fit every branch; drop those that are no tube and join the branches they separated.
 
     ``noise`` is the scan's own noise (:func:`_scan_noise`), against which a branch's misfit is judged,
     ``quantum`` the part of it its coordinates' grid alone adds (:func:`quantisation_noise`);
     ``curved`` marks the points that may be fitted (:func:`_assign`), ``kappa`` is each point's larger
-    principal curvature (a tube's points curve with its radius).
+    principal curvature (a tube's points curve with its radius); ``client``, Dask's, fits there.
     """
     fits = [None] * len(skel.branches)
     for _ in range(MAX_FIT_ROUNDS):
@@ -1105,7 +1114,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                "refine": refine, "noise": noise, "quantum": quantum}
         todo = [i for i, f in enumerate(fits) if f is None]
         reason = ""
-        for i, fit in zip(todo, _fit_all(todo, job)):
+        for i, fit in zip(todo, _fit_all(todo, job, client)):
             if isinstance(fit, str):
                 reason, fit = fit, False
             fits[i] = fit
