@@ -20,6 +20,7 @@ Run from the repository root::
     python benchmarks/bench.py --sizes 2000 --no-scene     # one size, no scene row
     python benchmarks/bench.py --sizes --no-scene --stream 10000000   # only the streaming row
     python benchmarks/bench.py --sizes --no-scene --stream 10000000 100000000 --bays 9   # two files
+    python benchmarks/bench.py --sizes --no-scene --stream 10000000 --bays 9 --dask 1 2 4   # and on Dask
 
 Besides the single tube, one row reconstructs a scene of many tubes (``SCENE``) of a million points.
 With ``--stream N [N ...]`` another row per N streams a LAZ file of N points of that scene: generated once, in parts
@@ -27,6 +28,9 @@ of ``STREAM_PART`` points (each an independent seeded sample of the same plant) 
 writer, so no process holds the whole cloud; then laspy alone reads all its points (chunk by chunk, with
 laspy's default, multi-threaded decoder) and ``canalsurf reconstruct`` runs on it, each in a process of
 its own, timed in the same run; the row gives the ratio of the two and canalsurf's peak memory.
+With ``--dask W [W ...]`` the first streamed file is reconstructed again with ``--dask ADDRESS`` on a local
+Dask cluster of W worker processes (started in a process of its own), one row per W, and each model.json
+is compared with the one of the run without Dask, byte for byte.
 """
 
 from __future__ import annotations
@@ -208,20 +212,67 @@ def laspy_read(cloud: Path) -> dict:
     return {"laspy": time.perf_counter() - start, "read": count}
 
 
-def bench_stream(n: int, workdir: Path, size: int = SCENE_SIZE) -> dict:
+def bench_stream(n: int, workdir: Path, size: int = SCENE_SIZE, dask: tuple = ()) -> dict:
     """The streaming row: a LAZ file of ``n`` points of a plant of ``size`` bays, read by laspy alone and
-    reconstructed."""
+    reconstructed; then on a local Dask cluster of each number of workers in ``dask``."""
     cloud, out = workdir / f"{SCENE}-{n}.laz", workdir / "out-stream"
     row = {"points": n, "size": size, **_helper("prepare_stream", n, cloud, size), **_helper("laspy_read", cloud)}
     wall, rss, summary, code = run_cli(cloud, out)
-    cloud.unlink()
     row.update(wall=wall, rss=rss, ratio=wall / row["laspy"], exit=code)
+    model = (out / "model.json").read_bytes() if code == 0 else None
+    row["dask"] = [bench_dask(w, cloud, workdir / f"out-dask-{w}", model) for w in dask]
+    cloud.unlink()
     if code == 0:
         row.update(sampled=summary.get("points_sampled", summary.get("points_read")), read=summary["read_seconds"],
                    stages=summary["diagnostics"]["seconds"], **_helper("score_scene", out / "model.json", size))
     else:
         row["error"] = summary.get("error", "")
     return row
+
+
+def dask_cluster(workers: int) -> None:
+    """Run a local Dask cluster of ``workers`` processes until stdin closes; its address, as JSON, first."""
+    import distributed
+
+    with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cluster:
+        print(json.dumps({"address": cluster.scheduler_address}), flush=True)
+        sys.stdin.read()
+
+
+def bench_dask(workers: int, cloud: Path, out: Path, model: bytes | None) -> dict:
+    """Wall seconds and fit seconds of ``canalsurf reconstruct --dask`` on a cluster of ``workers``, and
+    whether its model.json is ``model``, byte for byte."""
+    cluster = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--helper", "dask_cluster",
+                                str(workers)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        address = json.loads(cluster.stdout.readline())["address"]
+        wall, rss, summary, code = run_cli(cloud, out, "--dask", address)
+    finally:
+        cluster.stdin.close()
+        cluster.wait()
+    if code != 0:
+        return {"workers": workers, "wall": wall, "exit": code, "error": summary.get("error", "")}
+    return {"workers": workers, "wall": wall, "rss": rss, "exit": code, "fit": summary["diagnostics"]["seconds"]["fit"],
+            "same": (out / "model.json").read_bytes() == model}
+
+
+def dask_table(row: dict) -> str:
+    """The Dask rows of a streamed file: seconds, speed-up over one worker, and the model against the run
+    without Dask."""
+    lines = ["| Dask workers | canalsurf wall s | fit s | speed-up over 1 worker (wall, fit) | client peak MB "
+             "| model.json the same as without Dask |", "|---|---|---|---|---|---|"]
+    one = next((r for r in row["dask"] if r["workers"] == 1 and r["exit"] == 0), None)
+    for r in row["dask"]:
+        if r["exit"] != 0:
+            lines.append(f"| {r['workers']} | {r['wall']:.2f} | failed (exit {r['exit']}): {r['error'].strip()} | | | |")
+            continue
+        speed = "" if one is None else f"{one['wall'] / r['wall']:.2f}, {one['fit'] / r['fit']:.2f}"
+        lines.append(f"| {r['workers']} | {r['wall']:.2f} | {r['fit']:.2f} | {speed} | {r['rss'] / 2**20:.0f} | "
+                     f"{'yes' if r['same'] else 'no'} |")
+    lines.append(f"| none (forked processes, {os.cpu_count()} cores) | {row['wall']:.2f} | "
+                 f"{row['stages']['fit']:.2f} | | {row['rss'] / 2**20:.0f} | |")
+    return "\n".join(lines)
 
 
 def stream_table(rows: list) -> str:
@@ -257,11 +308,11 @@ def _helper(task: str, *args) -> dict:
     return json.loads(out.stdout.splitlines()[-1])
 
 
-def run_cli(cloud: Path, out: Path) -> tuple[float, int, dict, int]:
+def run_cli(cloud: Path, out: Path, *options: str) -> tuple[float, int, dict, int]:
     """Wall seconds, peak RSS in bytes, the --json summary and the exit code of one reconstruction."""
     exe = Path(sys.executable).with_name("canalsurf")
     start = time.perf_counter()
-    proc = subprocess.Popen([str(exe), "--json", "-q", "reconstruct", str(cloud), "-o", str(out)],
+    proc = subprocess.Popen([str(exe), "--json", "-q", "reconstruct", str(cloud), "-o", str(out), *options],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     stdout = proc.stdout.read()
     stderr = proc.stderr.read()
@@ -366,6 +417,8 @@ def main(argv=None) -> int:
                         help="also stream a LAZ file of N points of the scene, one row per N (e.g. 10000000)")
     parser.add_argument("--bays", type=int, default=SCENE_SIZE,
                         help="bays of the streamed plant (23 tubes each; 9 for the plant-scale bar of 207 tubes)")
+    parser.add_argument("--dask", type=int, nargs="+", metavar="W", default=(),
+                        help="also reconstruct the first streamed file on local Dask clusters of W workers")
     parser.add_argument("--startup", action="store_true",
                         help="also compare a 2,000-point run with a process that only imports numpy and scipy")
     parser.add_argument("--helper", nargs="+", help=argparse.SUPPRESS)
@@ -379,6 +432,8 @@ def main(argv=None) -> int:
             print(json.dumps(score_scene(Path(rest[0]), *map(int, rest[1:]))))
         elif task == "prepare_stream":
             print(json.dumps(prepare_stream(int(rest[0]), Path(rest[1]), *map(int, rest[2:]))))
+        elif task == "dask_cluster":
+            dask_cluster(int(rest[0]))
         elif task == "laspy_read":
             print(json.dumps(laspy_read(Path(rest[0]))))
         elif task == "prepare":
@@ -395,8 +450,10 @@ def main(argv=None) -> int:
             rows.append(bench(n, Path(tmp), repeat=max(1, args.repeat)))
             print(table(rows[-1:]).splitlines()[-1], flush=True)
         scene = None if args.no_scene else scene_table(bench_scene(Path(tmp)))
-        stream = None if args.stream is None else stream_table(
-            [bench_stream(n, Path(tmp), args.bays) for n in args.stream])
+        streamed = [bench_stream(n, Path(tmp), args.bays, args.dask if i == 0 else ())
+                    for i, n in enumerate(args.stream or ())]
+        stream = stream_table(streamed) if streamed else None
+        dask = dask_table(streamed[0]) if args.dask and streamed else None
         startup = bench_startup(Path(tmp)) if args.startup else None
     text = table(rows) if rows else ""
     print(text)
@@ -404,6 +461,8 @@ def main(argv=None) -> int:
         print(scene)
     if stream:
         print(stream)
+    if dask:
+        print(dask)
     if startup:
         print(startup)
     if args.markdown:
@@ -440,6 +499,12 @@ def main(argv=None) -> int:
                f"{PLANT_POINTS:,} points also every tube found, each tube's spine mean ≤ {100 * PLANT_TARGETS[1]:g} % r "
                f"and wall ≤ {PLANT_TARGETS[0]:g} s (the plant-scale bar: 10⁷ points of 200 tubes and more, "
                "`--stream 10000000 --bays 9`).\n\n" + stream + "\n")
+            + ("" if dask is None else
+               f"\n## The same file on Dask\n\nThe file of {args.stream[0]:,} points again, with `--dask ADDRESS`: "
+               "its branches fitted as Dask tasks on a local cluster (`distributed.LocalCluster`, one thread per "
+               "worker process, started before the run and not timed); *fit s* the fit stage; *client peak MB* "
+               "the `canalsurf` process alone; the last column compares each `model.json` with the one of the "
+               "run without Dask (the row above), byte for byte. The last row is that run.\n\n" + dask + "\n")
             + ("" if startup is None else
                "\n## Start-up\n\nMedian wall seconds of a process that only runs `import numpy, scipy.spatial` and "
                f"of a whole 2,000-point `canalsurf reconstruct` (all files written), run in turn {STARTUP_RUNS} "
