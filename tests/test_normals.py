@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from canalsurf import synth
 from canalsurf.constants import NORMAL_NEIGHBOURS
-from canalsurf.normals import estimate_normals, orient_normals
+from canalsurf.normals import estimate_normals, orient_normals, surface_noise
 
 SEED = 7
 #: Share of estimated normals that must point the same way as the true ones (NOTES: MST orientation
@@ -160,3 +160,35 @@ def test_on_planes_finds_the_floor_under_a_pipe_but_not_the_pipe():
     assert len(found) >= 0.9 * len(flat)
     tube = scene.label >= 0
     assert np.isin(np.flatnonzero(tube), found).mean() < 0.01
+
+
+def _noisy_cylinder(radius: float, n: int, sigma: float, rng) -> np.ndarray:
+    """``n`` points on a cylinder of length 10, moved along their normals by Gaussian noise ``sigma``."""
+    angle, z = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 10, n)
+    r = radius + rng.normal(scale=sigma, size=n)
+    return np.column_stack([r * np.cos(angle), r * np.sin(angle), z])
+
+
+@pytest.mark.parametrize("radius, n, sigma", [(1.0, 20_000, 0.01), (1.0, 20_000, 0.05), (1.0, 200_000, 0.05),
+                                              (0.5, 2500, 0.01)])
+def test_surface_noise_is_the_noise_along_the_normal(radius, n, sigma):
+    """True Gaussian noise within 10 %: also where it is near the spacing (the second and third case:
+    the points are thinned), and where neighbourhoods reach half the radius (the last case: a
+    regression plane there reads the curvature as noise)."""
+    points = _noisy_cylinder(radius, n, sigma, np.random.default_rng(3))
+    estimate = surface_noise(points, points[:2000])
+    assert abs(estimate - sigma) < 0.1 * sigma, estimate
+    reach = cKDTree(points).query(points[:2000], k=NORMAL_NEIGHBOURS)[0][:, -1].mean()
+    if reach > radius / 4:
+        planes = points[cKDTree(points).query(points[:2000], k=NORMAL_NEIGHBOURS)[1]]
+        planes -= planes.mean(axis=1, keepdims=True)
+        plane_scatter = np.sqrt(np.median(np.linalg.eigvalsh(np.einsum("nki,nkj->nij", planes, planes))[:, 0]
+                                          / NORMAL_NEIGHBOURS))
+        assert plane_scatter > 1.5 * sigma  # what the quadric avoids
+
+
+def test_surface_noise_of_a_noise_free_surface_is_near_zero_and_of_too_few_points_zero():
+    points = _noisy_cylinder(1.0, 20_000, 0.0, np.random.default_rng(4))
+    assert surface_noise(points, points[:500]) < 1e-3
+    assert surface_noise(points[:10], points[:5]) == 0.0
+    assert surface_noise(points, points[:0]) == 0.0

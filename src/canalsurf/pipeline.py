@@ -26,7 +26,7 @@ from .errors import InputError, ReconstructionError
 from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
-from .normals import estimate_normals, on_planes, point_inward
+from .normals import estimate_normals, on_planes, point_inward, surface_noise
 from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
@@ -52,7 +52,7 @@ MIN_CHECKED_POINTS = ROUNDNESS_POINTS
 #: radius (:func:`canalsurf.metrics.roundness`): a scanned pipe is round to a few per cent, a box or a
 #: square duct fitted by a tube is 10 - 30 % off at its corners and faces.
 MAX_OUT_OF_ROUND = 0.08
-#: ... or whose inlier RMS exceeds this many times the scan's own noise (:func:`_scan_noise`) and
+#: ... or whose inlier RMS exceeds this many times the scan's own noise (:func:`_noise`) and
 #: this share of its radius: a tube fitted to clutter (a box, a corner) misfits its points several
 #: times the noise, a scanned tube about once (the share keeps a scan's largest tubes, whose absolute
 #: noise may be above the scan's median, from being judged by its smallest).
@@ -217,7 +217,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         skel = skeletonize(np.concatenate([s.thin for s in passes]), np.concatenate([s.r_i for s in passes]),
                            spacing=np.concatenate([np.full(len(s.thin), C.ORDER_VOXEL_PER_H * s.p["H"])
                                                    for s in passes]))
-    noise = max(s.noise for s in passes)
+    with timer("normals"):
+        noise = _noise(scan, passes, quantum)
     fit_pts, support = _fit_points(scan, passes, len(skel.branches))
     with timer("fit"):
         skel, fits = _fit_network(fit_pts, skel, kind=kind, refine=refine, noise=noise, quantum=quantum,
@@ -261,8 +262,7 @@ class _Pass:
     """The paper's stages (normals, shrinking, thinning) run on one subset of the scan at one scale.
 
     ``scan`` holds the points of the pass (``scan.pts`` its subset); ``curved`` indexes the subset's
-    points that may shrink, ``kappa`` their larger principal curvature, ``noise`` the scan's own noise
-    there; ``thin`` and ``r_i`` are the thin set and the distance of each of its points' input point
+    points that may shrink, ``kappa`` their larger principal curvature; ``thin`` and ``r_i`` are the thin set and the distance of each of its points' input point
     (of ``scan.pts[curved[kept]]``).
     """
 
@@ -272,7 +272,6 @@ class _Pass:
     p: dict
     curved: np.ndarray
     kappa: np.ndarray
-    noise: float
     sr: ShrinkResult
     kept: np.ndarray
     thin: np.ndarray
@@ -290,8 +289,8 @@ def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbou
     """
     algo = "pipe" if kind == "pipe" else "canal"
     with timer("normals"):
-        scan, nrm, r0, area_per_point, curved, noise, kappa = _normals(scan, k, flat_out=stop == "auto",
-                                                                       quantum=quantum, widest=widest)
+        scan, nrm, r0, area_per_point, curved, kappa = _normals(scan, k, flat_out=stop == "auto",
+                                                                quantum=quantum, widest=widest)
     p = _parameters(r0, area_per_point, scan.scale, algo=algo, stop=stop, **given)
     with timer("shrink"):
         try:
@@ -314,7 +313,7 @@ def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbou
     with timer("thin"):
         thin = _thin(sr.points[kept], p["H"])
         r_i = np.linalg.norm(scan.pts[curved[kept]] - thin, axis=1)
-    return _Pass(scan, nrm, r0, p, curved, kappa, noise, sr, kept, thin, r_i)
+    return _Pass(scan, nrm, r0, p, curved, kappa, sr, kept, thin, r_i)
 
 
 #: After the paper's stages, a point of the scan is explained when it lies within this many of the local
@@ -539,14 +538,14 @@ def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0, widest: fl
         if len(curved) < MIN_POINTS:
             raise ReconstructionError("the surface is flat (no curvature around a spine) — "
                                       "the input is not a tube")
-    # The tubes' noise, not the floor's: a quantised floor is exactly flat and would read as no noise.
-    noise = max(_scan_noise(scan.pts, nbr[curved]), quantum)
     if flat_out:
         # Points on a large plane (ground, a wall, a sign) are clutter even where their neighbourhood
-        # reaches a tube and reads as curved.
+        # reaches a tube and reads as curved.  The tubes' noise, not the floor's: a quantised floor is
+        # exactly flat and would read as no noise.
+        noise = max(_scan_noise(scan.pts, nbr[curved]), quantum)
         curved = np.setdiff1d(curved, on_planes(scan.pts, nrm, np.setdiff1d(np.arange(len(scan.pts)), curved),
                                                 C.PLANE_TOLERANCE_NOISES * noise))
-    return scan, nrm, r0, area_per_point, curved, noise, kappa
+    return scan, nrm, r0, area_per_point, curved, kappa
 
 
 #: Coordinates of this many points (a seeded sample) are searched for a common grid step.
@@ -559,17 +558,33 @@ QUANTUM_TOLERANCE = 1e-3
 
 
 def _scan_noise(points: np.ndarray, nbr: np.ndarray) -> float:
-    """The scan's noise: the median RMS offset of each point's neighbours from their regression plane.
-
-    Independent of any tube fitted, it is what a good fit's residual must come close to (a little
-    above on curved patches of sparse scans, whose planes cannot follow the curvature).
-    """
+    """The median RMS offset of each point's neighbours from their regression plane: how far off a
+    plane its points may lie (:func:`canalsurf.normals.on_planes`).  On a pass's subset it also takes in
+    the tubes' curvature, so it is not the noise a fit is judged against (:func:`_noise`)."""
     if not len(nbr):
         return 0.0
     patch = points[nbr]
     centred = patch - patch.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", centred, centred) / patch.shape[1]
     return float(np.sqrt(max(np.median(np.linalg.eigvalsh(cov)[:, 0]), 0.0)))
+
+
+#: The scan's noise is measured about this many points (a seeded sample) of the passes' curved points ...
+NOISE_SEEDS = 2_000
+#: ... in neighbourhoods among at most this many of the scan's points (a seeded subset of a larger one):
+#: neighbourhoods from the whole scan reach a fraction of the radius even beside a scene's thinnest tubes.
+NOISE_POINTS = 2_000_000
+
+
+def _noise(scan: _Scan, passes: list, quantum: float) -> float:
+    """The scan's own noise (:func:`canalsurf.normals.surface_noise`), at least its grid's
+    (``quantum``): what a good fit's residual must come close to, independent of any tube fitted."""
+    seeds = np.concatenate([s.scan.pts[s.curved] for s in passes])
+    seeds = seeds[np.random.default_rng(0).permutation(len(seeds))[:NOISE_SEEDS]]
+    points = scan.all_pts
+    if scan.draw is not None and len(points) > NOISE_POINTS:
+        points = points[np.sort(scan.draw[:NOISE_POINTS])]
+    return max(surface_noise(points, seeds), quantum)
 
 
 def quantisation_noise(points: np.ndarray, *, sample: int = QUANTUM_SAMPLE) -> float:
@@ -1085,7 +1100,7 @@ SCENE_NOISE_BRANCHES = 5
 
 
 def _scene_noise(fits: list, noise: float) -> float:
-    """The noise a fit is judged against: the scan's (:func:`_scan_noise`), or in a scene of
+    """The noise a fit is judged against: the scan's (:func:`_noise`), or in a scene of
     SCENE_NOISE_BRANCHES tubes and more the median inlier RMS of their fits, if lower.
 
     The scan's noise is the points' scatter about their local planes, which on a subset too sparse
@@ -1102,7 +1117,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                  quantum: float, curved: np.ndarray, kappa: np.ndarray, client=None):
     """Fit every branch; drop those that are no tube and join the branches they separated.
 
-    ``noise`` is the scan's own noise (:func:`_scan_noise`), against which a branch's misfit is judged,
+    ``noise`` is the scan's own noise (:func:`_noise`), against which a branch's misfit is judged,
     ``quantum`` the part of it its coordinates' grid alone adds (:func:`quantisation_noise`);
     ``curved`` marks the points that may be fitted (:func:`_assign`), ``kappa`` is each point's larger
     principal curvature (a tube's points curve with its radius); ``client``, Dask's, fits there.
