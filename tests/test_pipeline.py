@@ -206,21 +206,45 @@ def test_a_branch_that_folds_at_its_junction_is_left_out_and_the_rest_kept():
         _unfolded([parts()[2]], junction)
 
 
-@pytest.mark.parametrize(("tail_points", "ends", "cut"), [(50, (None, None), True), (50, (None, 0), False),
-                                                          (400, (None, None), False)])
-def test_a_few_points_past_a_long_gap_at_an_open_end_are_no_part_of_the_tube(tail_points, ends, cut):
-    """A tube 30 radii long with points over its first 60 % and a few more past a gap of 9 radii: those
-    few (under a tenth of the points) are strays its open end grew to, and are cut off; not at a
-    junction (the tube goes on there), nor when they are a real part of the tube."""
+def _pipe_points(radius, x0, x1, n, rng, off=0.0):
+    """``n`` points on a pipe along the x-axis (its axis moved ``off`` along y), 1 % noise of radius 1."""
+    angle, x = rng.uniform(0, 2 * np.pi, n), rng.uniform(x0, x1, n)
+    r = radius + rng.normal(scale=0.01, size=n)
+    return np.column_stack([x, off + r * np.cos(angle), r * np.sin(angle)])
+
+
+def _gap_fit(beyond, ends):
+    """A pipe of radius 1.2 fitted to 5,000 points over x in [0, 12] and the points ``beyond`` (past a gap
+    at x = 18), from a first estimate along x in [0, 24]."""
+    from canalsurf.pipeline import _fit_branch
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    points = np.concatenate([_pipe_points(1.2, 0, 12, 5000, np.random.default_rng(0)), beyond])
+    u = np.linspace(0.0, 1.0, 50)
+    guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(1.2),
+             "eq6": 1.2, "segments": (6, 6), "closed": False}
+    return _fit_branch(points, guess, kind="pipe", refine=True), guess
+
+
+@pytest.mark.parametrize(("beyond", "ends", "cut"), [
+    # a few strays past the gap, at an open end: cut; at a junction (the tube goes on there): kept
+    ((1.2, 60, 0.0), (None, None), True), ((1.2, 60, 0.0), (None, 0), False),
+    # the same pipe past an occlusion: kept
+    ((1.2, 1500, 0.0), (None, None), False),
+    # a thinner tube beside the line, whose far side the pipe's end grew across the gap to fit: cut
+    ((0.5, 1500, 0.7), (None, None), True), ((0.5, 1500, 0.7), (None, 0), False)])
+def test_what_lies_past_a_long_gap_at_an_open_end_is_cut_unless_it_is_the_same_tube(beyond, ends, cut):
+    """A pipe 10 radii long, a gap of 5 radii, then points over 5 radii more: a few (under MAX_TAIL_SHARE
+    of the points) are strays its open end grew to; more are the same tube only if they fit a pipe of
+    its radius (MAX_GAP_RADIUS_CHANGE)."""
     from canalsurf.pipeline import MAX_TAIL_SHARE, _stray_tail
 
-    rng = np.random.default_rng(0)
-    fit = _fit_along([[0, 0, 0], [10, 0, 0], [20, 0, 0], [30, 0, 0]], ends)
-    fit.t = np.r_[rng.uniform(0.0, 0.6, 900), rng.uniform(0.9, 1.0, tail_points)]
-    fit.residual = rng.normal(scale=0.01, size=len(fit.t))
-    assert (tail_points / (900 + tail_points) < MAX_TAIL_SHARE) == (tail_points == 50)
-    tail = _stray_tail(fit, ends)
-    np.testing.assert_array_equal(tail, (fit.t >= 0.9) & cut)
+    radius, n, off = beyond
+    fit, guess = _gap_fit(_pipe_points(radius, 18, 24, n, np.random.default_rng(1), off), ends)
+    assert (n / (5000 + n) < MAX_TAIL_SHARE) == (n == 60)
+    tail = _stray_tail(fit, guess, ends)
+    assert not tail[:5000].any()
+    assert tail[5000:].mean() > 0.99 if cut else not tail.any()
 
 
 def test_a_tube_far_wider_than_its_points_moved_is_no_tube():

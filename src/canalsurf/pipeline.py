@@ -939,10 +939,15 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
 #: that holds less than this share of its points is not the same tube: strays (clutter, another tube's
 #: end) its end grew to across the gap.  The branch is fitted again without them.
 MAX_TAIL_SHARE = 0.1
+#: ... nor is a larger part whose own pipe fit differs in radius by more than this share from the
+#: rest's: a tube goes on across a gap (an occlusion) with its radius, and a pipe's end that grew across
+#: one into thinner tubes beside it fits some of their points, one sector of each, at its own radius.
+MAX_GAP_RADIUS_CHANGE = 0.15
 
 
-def _stray_tail(fit: _BranchFit, ends: tuple) -> np.ndarray:
-    """Which of the fit's points lie past its widest gap, in a tail towards an open end (MAX_TAIL_SHARE)."""
+def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
+    """Which of the fit's points lie past its widest gap, towards an open end, and are not the same
+    tube (MAX_TAIL_SHARE, MAX_GAP_RADIUS_CHANGE); ``guess`` is the branch's first estimate."""
     tail = np.zeros(len(fit.t), bool)
     if fit.closed or len(fit.t) < 2:
         return tail
@@ -954,10 +959,33 @@ def _stray_tail(fit: _BranchFit, ends: tuple) -> np.ndarray:
     if (inlier[widest + 1] - inlier[widest]) * length <= POOR_GAP_RADII * fit.eq6:
         return tail
     before = (widest + 1) / len(inlier)  # share of the inliers before the gap
-    for end, side, share in ((0, fit.t <= inlier[widest], before), (1, fit.t >= inlier[widest + 1], 1 - before)):
-        if ends[end] is None and share < MAX_TAIL_SHARE:
+    sides = ((fit.t <= inlier[widest], (0.0, inlier[widest]), before),
+             (fit.t >= inlier[widest + 1], (inlier[widest + 1], 1.0), 1 - before))
+    for end in (0, 1):
+        side, span, share = sides[end]
+        # The smaller side is the one in question: of two that differ, the larger is the branch's tube.
+        if ends[end] is None and (share < MAX_TAIL_SHARE or share < 0.5 and _other_tube(fit, guess, sides[end],
+                                                                                          sides[1 - end])):
             tail |= side
     return tail
+
+
+def _other_tube(fit: _BranchFit, guess: dict, side: tuple, rest: tuple) -> bool:
+    """Whether one ``side`` of a fit's points is another tube than the ``rest``, each ``(mask, (a, b),
+    share)`` over the spine's parameters [a, b]: their own pipe fits differ in radius
+    (MAX_GAP_RADIUS_CHANGE), or one fits no pipe."""
+    radii = []
+    for mine, (a, b), _ in (side, rest):
+        nseg, rseg = (max(1, int(round(n * (b - a)))) for n in guess["segments"])
+        spine, _, _ = arclength_reparametrize(fit.spine, n_segments=nseg, closed=False, a=a, b=b)
+        radius = constant_spline(float(np.mean(fit.radius(np.linspace(a, b, 50)))))
+        try:
+            part = _fit_branch(fit.points[mine], {**guess, "spine": spine, "radius": radius, "segments": (nseg, rseg)},
+                               kind="pipe", refine=True)
+        except ReconstructionError:
+            return True
+        radii.append(float(part.radius(0.5)))
+    return abs(radii[0] - radii[1]) > MAX_GAP_RADIUS_CHANGE * radii[1]
 
 
 def _fit_one(i: int, job: dict) -> _BranchFit | str:
@@ -974,7 +1002,7 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
         fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=job["refine"])
         if job["refine"]:
             fit, idx = _grow(points, fit, idx, i, estimates, job["curved"], job["kind"])
-            tail = _stray_tail(fit, estimates.skel.branches[i].ends)
+            tail = _stray_tail(fit, estimates.guesses[i], estimates.skel.branches[i].ends)
             if tail.any():
                 idx = idx[~tail]
                 fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=True)
