@@ -229,24 +229,38 @@ def classify_points(points: np.ndarray, branches: list, *, cut: list | None = No
         distance[which[better]] = d[better]
         label[which[better]] = i
 
+    # The points of each candidate branch, in order: (branch, point) pairs sorted once.
+    pairs = np.unique(candidates * np.int64(n) + np.arange(n)[:, None])
+    start = np.searchsorted(pairs, np.arange(len(branches) + 1) * np.int64(n))
     for i in range(len(branches)):
-        try_branch(i, np.flatnonzero((candidates == i).any(axis=1)))
+        try_branch(i, pairs[start[i]:start[i + 1]] - i * np.int64(n))
     cuts = np.array(cut if cut is not None else [_branch_cut(b) for b in branches])
     # The nearest samples favour thin branches (sampled densely, and their spines lie nearer): a point on
     # a fat tube beside a thin one may see only the thin one's samples.  Every other branch whose
     # surface may lie nearer than the best so far is tried too, so the nearest surface of all is found;
     # the search is bounded by the largest cut for the points already on a tube.
+    # Only points near a branch's samples are looked at for it: those within the bound of the ball
+    # about the samples' box, found in a tree of the points; and, for the points on no tube, those
+    # whose distance from the box (no more than from any sample) leaves the branch a chance.
     limit = float(np.max(cuts))
+    lost = np.flatnonzero(best > limit) if far else np.empty(0, np.intp)
+    index = cKDTree(points)
     for i in range(len(branches)):
-        todo = ~(candidates == i).any(axis=1)
-        near = np.full(n, np.inf)
-        tree = cKDTree(samples[i])
-        groups = (((todo & (best <= limit), reach[i] + limit), (todo & (best > limit), np.inf)) if far
-                  else ((todo, reach[i] + limit),))
-        for group, bound in groups:
-            if group.any():
-                near[group] = tree.query(points[group], distance_upper_bound=bound, workers=-1)[0]
-        try_branch(i, np.flatnonzero(near - reach[i] < best))
+        low, high = samples[i].min(axis=0), samples[i].max(axis=0)
+        ball = np.asarray(index.query_ball_point((low + high) / 2, np.linalg.norm(high - low) / 2 + reach[i] + limit),
+                          dtype=np.intp)
+        if far:
+            ball = ball[best[ball] <= limit]
+            lost = lost[best[lost] > limit]
+            box = np.linalg.norm(np.maximum(np.maximum(low - points[lost], points[lost] - high), 0.0), axis=1)
+            ball = np.concatenate([ball, lost[box - reach[i] < best[lost]]])
+        ball = ball[~(candidates[ball] == i).any(axis=1)]
+        if not len(ball):
+            continue
+        bound = np.where(best[ball] <= limit, reach[i] + limit, np.inf) if far else reach[i] + limit
+        near = cKDTree(samples[i]).query(points[ball], workers=-1)[0]
+        near[near > bound] = np.inf
+        try_branch(i, np.sort(ball[near - reach[i] < best[ball]]))
     on = (label >= 0) & (best <= cuts[np.maximum(label, 0)])
     ids = np.array([b.id for b in branches])
     return np.where(on, ids[np.maximum(label, 0)], -1), distance
