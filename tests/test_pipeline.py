@@ -275,20 +275,6 @@ def test_a_radius_that_changes_many_fold_is_no_tube():
         assert not ok and "not one tube" in why
 
 
-def test_a_scene_measures_its_noise_on_its_tubes():
-    """With SCENE_NOISE_BRANCHES fitted tubes and more, their median inlier RMS is the noise, when it
-    is below the scan's (whose planes a sparse subset bends); with fewer, the scan's noise stands."""
-    from types import SimpleNamespace
-
-    from canalsurf.pipeline import SCENE_NOISE_BRANCHES, _scene_noise
-
-    fits = [SimpleNamespace(rms=r) for r in (0.01, 0.02, 0.015, 0.3, 0.012)]
-    assert len(fits) == SCENE_NOISE_BRANCHES
-    assert _scene_noise(fits, 0.4) == pytest.approx(0.015)
-    assert _scene_noise(fits, 0.005) == 0.005
-    assert _scene_noise(fits[:-1] + [False, None], 0.4) == 0.4  # left out or not fitted: not counted
-
-
 def test_a_canal_across_a_gap_in_its_points_is_gapped():
     """A fit whose points leave more than POOR_GAP_RADII radii of its spine bare has its radius fitted
     to nothing there (a canal across it joined two tubes); a shorter gap is a scan's own."""

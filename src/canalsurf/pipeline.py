@@ -121,8 +121,6 @@ class _BranchFit:
     t: np.ndarray
     points: np.ndarray
     kappa: np.ndarray | None = None
-    rms: float = np.inf  # inlier RMS distance from the surface and mean radius, once checked (_quality)
-    mean_radius: float = np.nan
 
 
 def _segments(length: float, spacing: float, n_points: int) -> int:
@@ -227,7 +225,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
         fits, junction_points = _join_at_junctions(fits, skel)
         fits, junction_points, left_out = _unfolded(fits, junction_points)
     with timer("residual"):
-        branches, summary = _check_and_describe(scan, fits, _scene_noise(fits, noise), junction_points, left_out)
+        branches, summary = _check_and_describe(scan, fits, noise, junction_points, left_out)
     network = _to_input_units(branches, junction_points, fits, scan)
     network.parameters = _reported_parameters(first.p, scan.scale, k=k, r0=first.r0, stop=stop,
                                               neighbours=neighbours, refine=refine)
@@ -900,17 +898,11 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     if q["coverage"] < C.ONE_SIDED_DEGREES and q["radius"] > MAX_RADIUS_PER_EQ6 * q["eq6"]:
         return False, (f"the best tube (radius {q['radius']:.2g}) is far wider than the distance the points "
                        f"moved to its spine (radius {q['eq6']:.2g}): not the tube the points came from")
-    if _misfits(q["rms"], q["radius"], noise):
+    if q["rms"] > SCAN_NOISE_RATIO * noise and q["rms"] > TUBE_RELATIVE_RESIDUAL * q["radius"]:
         return False, (f"the points misfit the best tube by {q['rms'] / q['radius']:.0%} of its radius, "
                        + (f"{q['rms'] / noise:.0f} times the scan's own noise" if noise > 0
                           else "and the scan has no noise"))
     return True, ""
-
-
-def _misfits(rms: float, radius: float, noise: float) -> bool:
-    """Whether a tube's inlier RMS is more than SCAN_NOISE_RATIO times the ``noise`` and more than
-    TUBE_RELATIVE_RESIDUAL of its radius: a tube fitted to clutter, not a scanned tube."""
-    return rms > SCAN_NOISE_RATIO * noise and rms > TUBE_RELATIVE_RESIDUAL * radius
 
 
 def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimates: _Estimates,
@@ -1011,9 +1003,7 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
             raise
         return str(exc).split(" — ")[0]
     fit.kappa = job["kappa"][idx]
-    q = _quality(fit)
-    fit.rms, fit.mean_radius = q["rms"], q["radius"]
-    ok, why = _is_tube(q, job["noise"], job["quantum"])
+    ok, why = _is_tube(_quality(fit), job["noise"], job["quantum"])
     return fit if ok else why
 
 
@@ -1122,25 +1112,6 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
         out.append(live[worst])
 
 
-#: A scene of at least this many fitted tubes measures its noise on them: the median of their inlier RMS
-#: distances, where that is below the scan's noise.
-SCENE_NOISE_BRANCHES = 5
-
-
-def _scene_noise(fits: list, noise: float) -> float:
-    """The noise a fit is judged against: the scan's (:func:`_noise`), or in a scene of
-    SCENE_NOISE_BRANCHES tubes and more the median inlier RMS of their fits, if lower.
-
-    The scan's noise is the points' scatter about their local planes, which on a subset too sparse
-    for its thinner tubes takes in their curvature (twenty times the noise on a sparse plant of two bays):
-    a fit through clutter then passes.  The scene's tubes, fitted, show the noise itself.
-    """
-    rms = [f.rms for f in fits if f and np.isfinite(f.rms)]
-    if len(rms) < SCENE_NOISE_BRANCHES:
-        return noise
-    return min(noise, float(np.median(rms)))
-
-
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
                  quantum: float, curved: np.ndarray, kappa: np.ndarray, client=None):
     """Fit every branch; drop those that are no tube and join the branches they separated.
@@ -1163,11 +1134,6 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             fits[i] = fit
         for i in _inside_others(fits, skel):
             reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
-        scene = _scene_noise(fits, noise)
-        for i, fit in enumerate(fits):
-            if fit and _misfits(fit.rms, fit.mean_radius, scene):
-                reason, fits[i] = (f"the points misfit the best tube {fit.rms / scene:.0f} times as much as the "
-                                   "scene's other tubes"), False
         drop = [i for i, f in enumerate(fits) if f is False]
         if not drop:
             break
