@@ -36,7 +36,7 @@ def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return vecs[:, :, 0]
 
 
-def estimate_normals(points: np.ndarray, *, k: int | None = None, tree: cKDTree | None = None) -> np.ndarray:
+def estimate_normals(points: np.ndarray, *, k: int | None = None, neighbours: np.ndarray | None = None) -> np.ndarray:
     """Unit normals of the regression planes of the ``k`` nearest neighbours, oriented outward.
 
     Parameters
@@ -45,19 +45,18 @@ def estimate_normals(points: np.ndarray, *, k: int | None = None, tree: cKDTree 
     k : int, optional
         Neighbourhood size (default 16).  Raise it for noisy or dense scans so that a neighbourhood
         spans clearly more than the noise; lower it for tubes only a few points around.
-    tree : scipy.spatial.cKDTree, optional
-        A tree already built on ``points``.
+    neighbours : ndarray of int, shape (N, k), optional
+        Each point's ``k`` nearest points (itself first), from a search already made; ``k`` is then
+        their number.
 
     Returns
     -------
     ndarray, shape (N, 3)
     """
-    k = NORMAL_NEIGHBOURS if k is None else int(k)
-    k = min(k, len(points))
-    tree = cKDTree(points) if tree is None else tree
-    _, idx = tree.query(points, k=k, workers=-1)
-    normals = _pca_normals(points, idx)
-    return orient_normals(points, normals, idx[:, : min(k, ORIENT_NEIGHBOURS + 1)])
+    if neighbours is None:
+        k = min(NORMAL_NEIGHBOURS if k is None else int(k), len(points))
+        neighbours = cKDTree(points).query(points, k=k, workers=-1)[1]
+    return orient_normals(points, _pca_normals(points, neighbours), neighbours[:, :ORIENT_NEIGHBOURS + 1])
 
 
 def _divergence(points, normals, rows, cols) -> np.ndarray:
@@ -123,12 +122,14 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
     tree = minimum_spanning_tree(graph.maximum(graph.T))
     n_parts, label = connected_components(tree, directed=False)
 
-    parent = np.arange(n)
-    for part in range(n_parts):
-        root = int(np.flatnonzero(label == part)[0])
-        _, pred = breadth_first_order(tree, root, directed=False, return_predecessors=True)
-        members = pred >= 0
-        parent[members] = pred[members]
+    # Each part's first point is its root.  One search from an extra node linked to every root gives
+    # each point its parent in the tree (in a tree the parent is the same whatever the order of search).
+    roots = np.unique(label, return_index=True)[1]
+    tree = tree.tocoo()
+    linked = coo_matrix((np.r_[tree.data, np.ones(n_parts)],
+                         (np.r_[tree.row, np.full(n_parts, n)], np.r_[tree.col, roots])), shape=(n + 1, n + 1))
+    _, pred = breadth_first_order(linked.tocsr(), n, directed=False, return_predecessors=True)
+    parent = np.where(pred[:n] == n, np.arange(n), pred[:n])
     flip = np.ones(n)
     child = parent != np.arange(n)
     flip[child] = np.sign(np.einsum("ij,ij->i", normals[child], normals[parent[child]]))

@@ -22,7 +22,7 @@ __all__ = ["principal_curvature", "curvature_radius", "pipe_radius", "prefer_can
 
 
 def principal_curvature(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
-                        tree: cKDTree | None = None) -> np.ndarray:
+                        neighbours: np.ndarray | None = None) -> np.ndarray:
     """The larger principal curvature ``kappa_max`` of the normal field at each point.
 
     On a tube it is the curvature around the tube, ``1 / r``; on a plane it is about 0 (the noise's).
@@ -33,14 +33,14 @@ def principal_curvature(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
         Points and consistently oriented unit normals.
     k : int
         Neighbourhood size of the curvature fit.
-    tree : cKDTree, optional
+    neighbours : ndarray of int, shape (N, k), optional
+        Each point's ``k`` nearest points, from a search already made (``k`` is then their number).
 
     Returns
     -------
     ndarray, shape (N,)
     """
-    tree = cKDTree(points) if tree is None else tree
-    _, idx = tree.query(points, k=min(k, len(points)), workers=-1)
+    idx = cKDTree(points).query(points, k=min(k, len(points)), workers=-1)[1] if neighbours is None else neighbours
     dp = points[idx] - points[:, None, :]
     dn = normals[idx] - normals[:, None, :]
     # Tangent basis of each point: any two unit vectors orthogonal to the normal.
@@ -60,7 +60,7 @@ def principal_curvature(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
 
 
 def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
-                     tree: cKDTree | None = None, kappa: np.ndarray | None = None) -> float:
+                     kappa: np.ndarray | None = None) -> float:
     """Median of ``1 / kappa_max`` over the points: a first estimate of the tube radius.
 
     Parameters
@@ -69,7 +69,6 @@ def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
         Points and consistently oriented unit normals.
     k : int
         Neighbourhood size of the curvature fit.
-    tree : cKDTree, optional
     kappa : ndarray, shape (N,), optional
         :func:`principal_curvature` of the points, if already known.
 
@@ -78,7 +77,7 @@ def curvature_radius(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
     float
     """
     if kappa is None:
-        kappa = principal_curvature(points, normals, k=k, tree=tree)
+        kappa = principal_curvature(points, normals, k=k)
     kappa = kappa[np.isfinite(kappa) & (kappa > 0)]
     if len(kappa) == 0:
         return float("inf")
