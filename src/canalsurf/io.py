@@ -745,9 +745,8 @@ _MAX_LAZ_POINTS_PER_BYTE = 500
 #: Points decoded at a time, so memory follows the points a file really holds, not what it claims.
 _LAS_CHUNK_POINTS = 1 << 20
 #: Points of a LAZ file decoded at once, by laspy's parallel decoder: two to three of LASzip's 50,000-point
-#: chunks, which two cores decode in little more than half the time of the one-thread decoder (10^7
-#: points: 1.2 s against 2.1 s; 1.1 s at 2**18 or more, in twice the memory), in 4.5 MB of records
-#: (point format 3).
+#: chunks, which the cores decode side by side (the one-thread decoder left all but one core idle), in
+#: 4.5 MB of records (point format 3).
 _LAZ_DECODE_POINTS = 1 << 17
 #: The variable-length record that describes LASzip compression.
 _LASZIP_USER_ID, _LASZIP_RECORD_ID = b"laszip encoded", 22204

@@ -21,8 +21,8 @@ __all__ = ["estimate_normals", "orient_normals", "point_inward", "on_planes", "s
 #: Coefficients of the local quadric of :func:`surface_noise`: h = a x^2 + b xy + c y^2 + d x + e y + f.
 _QUADRIC_TERMS = 6
 #: :func:`surface_noise` is taken where it is below this share of the neighbourhoods' reach (the distance
-#: of the k-th neighbour): Gaussian noise of 0.08 of the reach reads within 1 %, of 0.4 a fifth low
-#: (measured on a cylinder, tests/test_normals.py).
+#: of the k-th neighbour): nearer the reach the quadrics take in the noise and read it low (on the dense
+#: noisy cylinders of tests/test_normals.py the thinning keeps it within 10 %).
 NOISE_PER_REACH = 0.1
 #: ... thinning the points no further than this many.
 NOISE_MIN_POINTS = 2_000

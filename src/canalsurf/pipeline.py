@@ -847,8 +847,7 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
 
 #: Points (a seeded subset of a branch's) and Gauss-Newton passes of the canal fit that starts its pipe
 #: fit (see _fit_branch): three passes take the spine and its ends most of the way (the pipe fit goes
-#: on from there), in a third of the time of a converged canal (the plant of `bench.py`: 1.3 s against
-#: 3.6 s over its 31 branches).
+#: on from there), at a fraction of the cost of a converged canal.
 CANAL_START_POINTS = 1500
 CANAL_START_PASSES = 3
 
