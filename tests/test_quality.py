@@ -93,3 +93,18 @@ def test_fold_finds_a_hairpin_and_a_kink_but_not_a_tube():
     # itself, though it bends gently.
     torus = canalsurf.make_tube("torus", n=500, rng=1)
     assert "too short" in fold(torus.spine, constant_spline(6.0), True)
+
+
+def test_fold_finds_a_spine_that_bends_more_tightly_than_its_radius():
+    """A spine wiggling 0.05 to either side every unit of length bends with curvature up to 2: round a tube
+    of radius 1 it does so more tightly than the radius along two thirds of it (the surface passes through
+    itself), round one of radius 0.3 nowhere."""
+    from canalsurf.quality import FOLD_BEND_SHARE, fold
+    from canalsurf.spine import constant_spline
+
+    s = np.linspace(0, 8, 400)
+    wiggle = _polyline_spline(np.column_stack([s, 0.05 * np.sin(2 * np.pi * s), np.zeros_like(s)]))
+    why = fold(wiggle, constant_spline(1.0), False)
+    assert why.startswith("the spine bends more tightly than the tube's radius along ") and "passes through itself" in why
+    assert int(why.split("along ")[1].split("%")[0]) / 100 > FOLD_BEND_SHARE
+    assert fold(wiggle, constant_spline(0.3), False) == ""

@@ -52,6 +52,13 @@ CHECK_NO_TUBE_SHARE = 0.5
 #: (bend radius 1 D = 2 r) turns 90 degrees over 3.1 radii -- and the wiggles of an unrefined spline,
 #: however sharp, are too small to turn it round.
 FOLD_TURN_RADII = 1.0
+#: A pipe or canal surface is regular only where its spine bends less tightly than its radius (curvature
+#: times radius below 1): beyond, the inner side of the bend passes through itself.  A spine that does so
+#: along more than this share of its length is no tube's: a fit wiggling with the bumps of a one-sided
+#: scan of bark (tree7 of the real scans: along 56 % of a branch, graded check).  Refined fits of the
+#: generated surfaces and networks stay below 1 throughout; unrefined splines (``refine=False``) wiggle
+#: past it along up to 8 % of their length.
+FOLD_BEND_SHARE = 0.2
 #: Spine samples of :func:`fold`: bends and near passes are found to well within a radius.
 FOLD_SAMPLES = 600
 #: Two parts of a spine this many radii apart along it (half a turn round a circle of the radius
@@ -92,6 +99,13 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     turned = np.einsum("ij,ij->i", tangent[inside], tangent[ahead[inside]]) < 0
     if turned.any():
         return "the spine turns back on itself within a radius (a hook or a hairpin)"
+    second = spine.derivative(2)(t)
+    bend = np.linalg.norm(np.cross(tangent, second), axis=1) / np.maximum(
+        np.einsum("ij,ij->i", spine.derivative()(t), tangent) ** 2, 1e-300)
+    tight = float(np.mean(bend * r > 1.0))
+    if tight > FOLD_BEND_SHARE:
+        return (f"the spine bends more tightly than the tube's radius along {tight:.0%} of it (the surface "
+                "passes through itself)")
     along = np.abs(s[:, None] - s[None])
     if closed:
         along = np.minimum(along, length - along)
