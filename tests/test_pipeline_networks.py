@@ -207,3 +207,16 @@ def test_a_link_across_the_ends_of_two_pipes_is_no_tube():
     fits = [f for f, _ in parts]
     skel = Skeleton([b for _, b in parts], np.array([[10.0, 10.0, 8.0]]), 0.1)
     assert sorted(_inside_others(fits, skel)) == [2, 6]
+
+
+def test_a_reducer_in_a_piping_scan_is_fitted_as_a_canal_whole():
+    """Of the piping network (seed 201, 2 % noise) the 4" x 2" reducer: a pipe fit takes its wide half and
+    leaves the narrow half out as outliers, so whether a canal is worth fitting is judged on every point
+    (clipped), not on the pipe's inliers -- which once left it a pipe over half of it, 71 % r off."""
+    from canalsurf.metrics import compare_network
+
+    truth = make_network("piping", n=30_000, noise=0.02, rng=201)
+    network = canalsurf.reconstruct(truth.points)
+    assert sum(b.kind == "canal" for b in network.branches) == 1
+    for b in compare_network(network, truth)["branches"]:
+        assert b["covered"] >= COVERED and b["spine_mean"] <= SPINE_MEAN, b

@@ -866,15 +866,18 @@ CANAL_SCREEN = 0.5
 
 def _radius_varies(fit: RefineResult, eq6: float, rseg: int, closed: bool) -> bool:
     """Whether a pipe fit's residuals vary along its spine as a radius function could take up: the
-    inliers' residuals, fitted by a spline of ``rseg`` segments in the footpoint parameter, change the
-    radius by at least CANAL_SCREEN x CANAL_MIN_VARIATION of it.  With the spine held, this is what a
-    canal's radius function alone would gain; a canal changes its radius by as much as it varies."""
-    near = ~is_stray(fit.residual, eq6)
-    if near.sum() <= n_coefficients(rseg, closed):
+    residuals, fitted by a spline of ``rseg`` segments in the footpoint parameter, change the radius by
+    at least CANAL_SCREEN x CANAL_MIN_VARIATION of it.  With the spine held, this is what a canal's
+    radius function alone would gain.  Every point counts, its residual clipped at the outlier cut: where
+    the tube narrows (a reducer) the pipe takes its wide part's points as inliers and the narrow part's
+    as outliers, past its end; clutter's clipped residuals, of either sign, average out."""
+    if len(fit.t) <= n_coefficients(rseg, closed):
         return True
-    B = design_matrix(fit.t[near], rseg, closed)
+    centred = fit.residual - np.median(fit.residual)
+    cut = outlier_cut(fit.residual, eq6)
+    B = design_matrix(fit.t, rseg, closed)
     BtB = (B.T @ B).toarray()
-    coef = np.linalg.solve(BtB + 1e-9 * np.trace(BtB) * np.eye(len(BtB)), B.T @ fit.residual[near])
+    coef = np.linalg.solve(BtB + 1e-9 * np.trace(BtB) * np.eye(len(BtB)), B.T @ np.clip(centred, -cut, cut))
     change = design_matrix(np.linspace(0.0, 1.0, 200), rseg, closed) @ coef
     radius = float(fit.radius(0.5))
     return bool(np.ptp(change) > CANAL_SCREEN * C.CANAL_MIN_VARIATION * abs(radius))
