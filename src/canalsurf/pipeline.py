@@ -803,10 +803,9 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
         fits = {}
         if kind == "auto":
             # A canal fit finds the spine and its ends even where the start radius is off (the pipe fit
-            # goes on from its spine); a few passes on a subset are as good a start, and a canal is
-            # fitted to all points only if the pipe's residuals show a radius that varies.
-            sample = _canal_start_sample(len(points))
-            start = refine_fit(points[sample], spine, radius_fn, closed=closed, spine_segments=nseg,
+            # goes on from its spine); a few passes are as good a start, and a canal is fitted to the
+            # end only if the pipe's residuals show a radius that varies.
+            start = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
                                radius_segments=rseg, reach=eq6, iterations=CANAL_START_PASSES)
             fits["pipe"] = refine_fit(points, start.spine, constant_spline(eq6), closed=closed,
                                       spine_segments=nseg, radius_segments=None, reach=eq6)
@@ -845,18 +844,11 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
 
 
-#: Points (a seeded subset of a branch's) and Gauss-Newton passes of the canal fit that starts its pipe
-#: fit (see _fit_branch): three passes take the spine and its ends most of the way (the pipe fit goes
-#: on from there), at a fraction of the cost of a converged canal.
-CANAL_START_POINTS = 1500
+#: Gauss-Newton passes of the canal fit that starts a branch's pipe fit (see _fit_branch): a few take
+#: the spine and its ends most of the way (the pipe fit goes on from there), at a fraction of the cost of
+#: a converged canal.  (Three passes on a subset of 1,500 points were too few where the density varies
+#: tenfold along the tube: the pipe then went off in the sparse part.)
 CANAL_START_PASSES = 3
-
-
-def _canal_start_sample(n: int) -> np.ndarray:
-    """Indices of the seeded subset of a branch's ``n`` points its start canal is fitted to, in order."""
-    if n <= CANAL_START_POINTS:
-        return np.arange(n)
-    return np.sort(np.random.default_rng(0).choice(n, CANAL_START_POINTS, replace=False))
 
 
 #: A pipe fit is also fitted as a canal only if its residuals, regressed on the radius function's basis,
