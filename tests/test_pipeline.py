@@ -291,25 +291,3 @@ def test_a_canal_across_a_gap_in_its_points_is_gapped():
         t = t[(t < 0.5) | (t > 0.5 + gap / 20.0)]
         fit = SimpleNamespace(t=t, residual=rng.normal(0.0, 0.01, len(t)), spine=spine)
         assert _gapped(fit, 1.0, closed=False) is gapped
-
-
-@pytest.mark.parametrize(("growth", "step", "varies"), [(0.0, 0.0, False), (0.3, 0.0, True), (0.0, -0.5, True)])
-def test_a_pipe_fit_shows_whether_a_radius_function_is_worth_fitting(growth, step, varies):
-    """The residuals of a pipe fit to a straight tube whose radius grows by ``growth`` (uniformly along
-    it), or narrows by ``step`` from x = 12 to 14 (a reducer: the pipe takes the narrow part's points as
-    outliers, past its end), regressed on the radius function's basis, show the change: a canal is then fitted too; on
-    a pipe (1 % noise) they show none, and the canal is not fitted."""
-    from canalsurf.pipeline import _radius_varies
-    from canalsurf.refine import refine
-    from canalsurf.spine import constant_spline, pspline_fit
-
-    rng = np.random.default_rng(2)
-    x, angle = rng.uniform(0, 20, 4000), rng.uniform(0, 2 * np.pi, 4000)
-    r = 1.0 + growth * x / 20 + step * np.clip((x - 12) / 2, 0, 1) + rng.normal(scale=0.01, size=4000)
-    points = np.column_stack([x, r * np.cos(angle), r * np.sin(angle)])
-    u = np.linspace(0.0, 1.0, 50)
-    spine = pspline_fit(u, np.c_[20 * u, np.zeros((50, 2))], n_segments=4)
-    # started, as a branch is, from its Eq. (6) radius (the mean distance its points moved: here 0.8)
-    fit = refine(points, spine, constant_spline(0.8), closed=False, spine_segments=4, radius_segments=None,
-                 reach=0.8)
-    assert _radius_varies(fit, 0.8, 4, closed=False) is varies

@@ -32,7 +32,7 @@ from .radius import curvature_radius, plausible_radius, prefer_canal, principal_
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
-from .spine import arclength_reparametrize, constant_spline, curve_length, design_matrix, n_coefficients, pspline_fit
+from .spine import arclength_reparametrize, constant_spline, curve_length, pspline_fit
 
 __all__ = ["reconstruct", "STAGES"]
 
@@ -801,24 +801,12 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
     closed, (nseg, rseg) = guess["closed"], guess["segments"]
     if refine:
         fits = {}
-        if kind == "auto":
-            # A canal fit finds the spine and its ends even where the start radius is off (the pipe fit
-            # goes on from its spine); a few passes are as good a start, and a canal is fitted to the
-            # end only if the pipe's residuals show a radius that varies.
-            start = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
-                               radius_segments=rseg, reach=eq6, iterations=CANAL_START_PASSES)
-            fits["pipe"] = refine_fit(points, start.spine, constant_spline(eq6), closed=closed,
-                                      spine_segments=nseg, radius_segments=None, reach=eq6)
-            if _radius_varies(fits["pipe"], eq6, rseg, closed):
-                fits["canal"] = refine_fit(points, start.spine, start.radius, closed=closed, spine_segments=nseg,
-                                           radius_segments=rseg, reach=eq6)
-            else:
-                kind = "pipe"
-        elif kind == "canal":
+        if kind in ("auto", "canal"):
             fits["canal"] = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
                                        radius_segments=rseg, reach=eq6)
-        else:
-            fits["pipe"] = refine_fit(points, spine, constant_spline(eq6), closed=closed,
+        if kind in ("auto", "pipe"):
+            start = fits["canal"].spine if "canal" in fits else spine
+            fits["pipe"] = refine_fit(points, start, constant_spline(eq6), closed=closed,
                                       spine_segments=nseg, radius_segments=None, reach=eq6)
         if kind == "auto":
             # Both fits scored on all points with the same outlier cut: a fit that went wrong
@@ -842,37 +830,6 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
         radius_fn = constant_spline(eq6)
     t, residual = footpoints(points, spine, radius_fn, closed=closed)
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
-
-
-#: Gauss-Newton passes of the canal fit that starts a branch's pipe fit (see _fit_branch): a few take
-#: the spine and its ends most of the way (the pipe fit goes on from there), at a fraction of the cost of
-#: a converged canal.  (Three passes on a subset of 1,500 points were too few where the density varies
-#: tenfold along the tube: the pipe then went off in the sparse part.)
-CANAL_START_PASSES = 3
-
-
-#: A pipe fit is also fitted as a canal only if its residuals, regressed on the radius function's basis,
-#: vary its radius by at least this share of CANAL_MIN_VARIATION (below which a canal is not preferred).
-CANAL_SCREEN = 0.5
-
-
-def _radius_varies(fit: RefineResult, eq6: float, rseg: int, closed: bool) -> bool:
-    """Whether a pipe fit's residuals vary along its spine as a radius function could take up: the
-    residuals, fitted by a spline of ``rseg`` segments in the footpoint parameter, change the radius by
-    at least CANAL_SCREEN x CANAL_MIN_VARIATION of it.  With the spine held, this is what a canal's
-    radius function alone would gain.  Every point counts, its residual clipped at the outlier cut: where
-    the tube narrows (a reducer) the pipe takes its wide part's points as inliers and the narrow part's
-    as outliers, past its end; clutter's clipped residuals, of either sign, average out."""
-    if len(fit.t) <= n_coefficients(rseg, closed):
-        return True
-    centred = fit.residual - np.median(fit.residual)
-    cut = outlier_cut(fit.residual, eq6)
-    B = design_matrix(fit.t, rseg, closed)
-    BtB = (B.T @ B).toarray()
-    coef = np.linalg.solve(BtB + 1e-9 * np.trace(BtB) * np.eye(len(BtB)), B.T @ np.clip(centred, -cut, cut))
-    change = design_matrix(np.linspace(0.0, 1.0, 200), rseg, closed) @ coef
-    radius = float(fit.radius(0.5))
-    return bool(np.ptp(change) > CANAL_SCREEN * C.CANAL_MIN_VARIATION * abs(radius))
 
 
 def _gapped(fit: RefineResult, radius: float, closed: bool) -> bool:
