@@ -55,9 +55,8 @@ FOLD_TURN_RADII = 1.0
 #: A pipe or canal surface is regular only where its spine bends less tightly than its radius (curvature
 #: times radius below 1): beyond, the inner side of the bend passes through itself.  A spine that does so
 #: along more than this share of its length is no tube's: a fit wiggling with the bumps of a one-sided
-#: scan of bark (tree7 of the real scans: along 56 % of a branch, graded check).  Refined fits of the
-#: generated surfaces and networks stay below 1 throughout; unrefined splines (``refine=False``) wiggle
-#: past it along up to 8 % of their length.
+#: scan of bark.  Refined fits of the generated surfaces and networks stay below 1 throughout;
+#: unrefined splines (``refine=False``) wiggle past it along short stretches only.
 FOLD_BEND_SHARE = 0.2
 #: Spine samples of :func:`fold`: bends and near passes are found to well within a radius.
 FOLD_SAMPLES = 600
