@@ -161,6 +161,10 @@ def test_a_plant_of_tubes_four_times_apart_in_radius_is_found_whole():
         assert b["radius_mean"] <= RADIUS_MEAN, (i, b)
 
 
+#: Share of a sparse plant's tubes found (covered by a branch), at the least.
+SPARSE_FOUND_SHARE = 0.9
+
+
 @pytest.mark.parametrize(("bays", "n", "seed"), [(2, 120_000, 5), (2, 100_000, 1), (2, 400_000, 0),
                                                (2, 400_000, 6), (2, 400_000, 7), (2, 400_000, 8)])
 def test_a_sparse_plant_writes_no_tube_outside_its_claim(bays, n, seed):
@@ -170,8 +174,9 @@ def test_a_sparse_plant_writes_no_tube_outside_its_claim(bays, n, seed):
     radius and more off; seed 0), and canals through clutter that misfit twenty times the other tubes,
     accepted against a scan noise the sparse subset inflated (seed 6); a wavy pipe graded good against
     that noise (seed 7: the noise is now taken about quadrics, on the whole scan); a pipe whose end grew
-    across a gap into thinner tubes' points (seed 8).  Tubes may be missed, but every tube written is
-    within what its quality claims."""
+    across a gap into thinner tubes' points (seed 8).  Every tube written is within what its quality
+    claims, and nine tubes in ten are found: a first subset too sparse for the scene is drawn denser
+    before its normals are given up for cross-sections (which found 2 - 5 of these 46 tubes)."""
     from canalsurf.metrics import model_error
     from canalsurf.quality import CLAIMS
 
@@ -180,6 +185,8 @@ def test_a_sparse_plant_writes_no_tube_outside_its_claim(bays, n, seed):
     for e in model_error(network, truth.branches, truth.junctions):
         claim = CLAIMS[e["quality"]]
         assert e["spine_mean"] <= claim["spine"] and e["radius_mean"] <= claim["radius"], e
+    found = sum(b["covered"] >= COVERED for b in compare_network(network, truth)["branches"])
+    assert found >= SPARSE_FOUND_SHARE * len(truth.branches), found
 
 
 def test_a_link_across_the_ends_of_two_pipes_is_no_tube():

@@ -206,7 +206,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
     # with the scale given.
     automatic = stop == "auto" and R is None and delta is None and H is None
     first = _resolved(scan, k, given, kind=kind, stop=stop, neighbours=neighbours, quantum=quantum,
-                      timer=timer, fallback=True, densify=automatic)
+                      timer=timer, densify=automatic)
     passes = [first]
     if automatic:
         passes = _finer_scales(scan, first, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
@@ -359,7 +359,9 @@ def _resolved(scan: _Scan, k, given: dict, *, densify: bool, **options) -> _Pass
         most = min(len(scan.all_pts), MAX_STAGE_POINTS)
         last = not densify or scan.draw is None or len(scan.pts) >= most
         try:
-            run = _paper_stages(scan, k, given, **options)
+            # The fallback only on the densest subset: normals that do not gather on a sparse subset of
+            # a scene are its sparseness, and a denser one resolves them.
+            run = _paper_stages(scan, k, given, fallback=last, **options)
         except ReconstructionError:
             if last:
                 raise
