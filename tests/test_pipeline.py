@@ -247,6 +247,38 @@ def test_what_lies_past_a_long_gap_at_an_open_end_is_cut_unless_it_is_the_same_t
     assert tail[5000:].mean() > 0.99 if cut else not tail.any()
 
 
+def _hooked_spine(bend_radius: float, straight: float = 10.0, tail: float = 1.0):
+    """A spine straight for ``straight``, then turning 90 degrees round ``bend_radius``, then ``tail`` on."""
+    from canalsurf.spine import pspline_fit
+
+    a = np.linspace(0.0, straight, 400)
+    theta = np.linspace(0.0, np.pi / 2, 200)[1:]
+    b = np.linspace(0.0, tail, 60)[1:]
+    pts = np.concatenate([np.c_[a, 0 * a, 0 * a],
+                          np.c_[straight + bend_radius * np.sin(theta), bend_radius * (1 - np.cos(theta)), 0 * theta],
+                          np.c_[np.full_like(b, straight + bend_radius), bend_radius + b, 0 * b]])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    return pspline_fit(s / s[-1], pts, n_segments=60), straight / s[-1]
+
+
+@pytest.mark.parametrize(("bend_radius", "ends", "cut"), [(0.5, (None, None), True), (2.0, (None, None), False),
+                                                          (0.5, (None, 0), False)])
+def test_the_points_past_a_hook_at_an_open_end_are_cut(bend_radius, ends, cut):
+    """A pipe of radius 1 whose spine turns round 0.5 near its open end -- tighter than its radius: its
+    end hooked to a neighbour's in a rack -- loses the points past the hook; an elbow of a bend radius of
+    2 (the tightest real one) keeps them, as does a hook at a junction's end (there the tubes unite)."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _hooked_end
+    from canalsurf.spine import constant_spline
+
+    spine, straight = _hooked_spine(bend_radius)
+    t = np.linspace(0.0, 1.0, 2001)
+    tail = _hooked_end(SimpleNamespace(closed=False, spine=spine, radius=constant_spline(1.0), t=t), ends)
+    assert not tail[t < straight - 0.05].any()
+    assert tail[t > straight + 0.1].all() if cut else not tail.any()
+
+
 def test_a_tube_far_wider_than_its_points_moved_is_no_tube():
     """A fit seen from one side whose radius is several times the Eq. (6) radius of its points (how
     far they moved to the spine) left their scale; one near it, or one seen all round, is a tube."""

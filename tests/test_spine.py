@@ -13,6 +13,7 @@ from canalsurf.spine import (
     arclength_reparametrize,
     coefficients_to_spline,
     constant_spline,
+    curvature,
     curve_length,
     design_matrix,
     knots,
@@ -113,6 +114,19 @@ def test_periodic_fit_of_a_circle_is_c2_at_the_seam():
         expected = scale * np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]][order])
         np.testing.assert_allclose(f(0.0), expected, atol=tol * scale)
     assert np.abs(np.linalg.norm(fit(FINE), axis=1) - 1.0).max() <= 1e-3
+
+
+def test_curvature_of_a_helix_and_a_line():
+    """A helix of radius a and pitch 2 pi b curves by a / (a^2 + b^2) whatever its parameter speed; a
+    line not at all."""
+    u = np.linspace(0.0, 1.0, 2000)
+    a, b, turns = 2.0, 0.5, 3
+    angle = 2 * np.pi * turns * u**1.5  # an uneven parameter speed
+    helix = pspline_fit(u, np.column_stack([a * np.cos(angle), a * np.sin(angle), b * angle]), n_segments=120)
+    inner = np.linspace(0.1, 0.9, 50)  # the ends of a fit are looser
+    np.testing.assert_allclose(curvature(helix, inner), a / (a**2 + b**2), rtol=0.01)
+    line = pspline_fit(u, np.outer(u + u**2, [1.0, 2.0, -1.0]), n_segments=8)
+    assert curvature(line, inner).max() < 1e-9
 
 
 def test_design_matrix_is_a_partition_of_unity():

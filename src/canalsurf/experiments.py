@@ -31,7 +31,7 @@ from .errors import CanalsurfError, InputError
 from .io import atomic_write
 from .metrics import N_DENSE, compare
 from .pipeline import reconstruct
-from .spine import sample_arclength
+from .spine import curvature, sample_arclength
 from .synth import make_tube
 
 __all__ = ["EXPERIMENTS", "SETTINGS", "REPORT_NAME", "run_paper", "render_markdown"]
@@ -207,13 +207,12 @@ def _spine_facts(name: str) -> dict:
     _, dense = sample_arclength(tube.spine, N_DENSE)
     same = cKDTree(dense).query(tube.spine(t))[0]
     tc = np.linspace(0.0, 1.0, N_CURVATURE_SAMPLES)
-    d1, d2 = tube.spine.derivative(1)(tc), tube.spine.derivative(2)(tc)
-    curvature = np.linalg.norm(np.cross(d1, d2), axis=1) / np.linalg.norm(d1, axis=1) ** 3
+    bend = curvature(tube.spine, tc)
     pts = tube.spine(tc)
     return {"drift_mean": drift["mean"], "drift_max": drift["max"], "same_closest_mean": float(same.mean()),
             "same_closest_max": float(same.max()),
             "box": [float(v) for v in np.ptp(pts, axis=0)],
-            "min_curvature_radius": float(1.0 / curvature.max()),
+            "min_curvature_radius": float(1.0 / bend.max()),
             "true_mean_radius": float(np.mean(tube.radius(sample_arclength(tube.spine, N_PARAMETER_SAMPLES)[0])))}
 
 

@@ -538,14 +538,12 @@ def _canal_rings(spine: BSpline, radius: BSpline, *, closed: bool) -> tuple[int,
     The rings are also at most half the outer-side radius apart (:mod:`canalsurf.surface`'s own rule),
     so they follow the radius function.
     """
-    from .spine import curve_length
+    from .spine import curvature, curve_length
     from .surface import ALONG_SPACING_FRACTION, MIN_RINGS
 
     n_around = math.ceil(math.pi / math.acos(1.0 - FACE_SAG))
     t = np.linspace(0.0, 1.0, _RING_SAMPLES)
-    d1, d2 = spine.derivative(1)(t), spine.derivative(2)(t)
-    speed = np.linalg.norm(d1, axis=1)
-    kappa = np.linalg.norm(np.cross(d1, d2), axis=1) / speed**3
+    kappa = curvature(spine, t)
     r = np.asarray(radius(t), dtype=float).ravel()
     outer = 1.0 + r * kappa
     with np.errstate(divide="ignore"):

@@ -32,7 +32,7 @@ from .radius import curvature_radius, plausible_radius, prefer_canal, principal_
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
-from .spine import arclength_reparametrize, constant_spline, curve_length, pspline_fit
+from .spine import arclength_reparametrize, constant_spline, curvature, curve_length, pspline_fit, sample_arclength
 
 __all__ = ["reconstruct", "STAGES"]
 
@@ -320,9 +320,10 @@ EXPLAINED_RADII = 1.25
 #: Further passes at finer scales, at most (a plant's pipes span radii of 1 - 30 cm: each pass takes the
 #: median radius of what is left, about halving it).
 MAX_SCALE_PASSES = 4
-#: A further pass is kept only if the median radius of what it works on is at most this share of the
-#: previous pass's: else the points left are clutter, or tubes the previous scale already served.
-FINER_SCALE = 0.75
+#: A further pass is kept only if the median radius of what it works on is at most this many times the
+#: previous pass's: else the points left are clutter, or tubes the previous scale already served.  It may
+#: be a little wider: thin tubes beside wider ones, which the previous scale left, read wider than they are.
+MAX_SCALE_RATIO = 1.25
 #: A further pass runs only on at least this many unexplained points, and this share of the scan.
 MIN_PASS_POINTS = C.MAX_SHRINK_POINTS
 MIN_PASS_SHARE = 0.02
@@ -439,8 +440,8 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         except ReconstructionError as exc:
             log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
             break
-        if run.r0 > FINER_SCALE * coarser or _explained_share(run) < MIN_EXPLAINED_SHARE:
-            log.info("the %d points left unexplained hold no finer tubes (r0 = %.4g): no further pass", len(pool),
+        if run.r0 > MAX_SCALE_RATIO * coarser or _explained_share(run) < MIN_EXPLAINED_SHARE:
+            log.info("the %d points left unexplained hold no further tubes (r0 = %.4g): no further pass", len(pool),
                      run.r0 * scan.scale)
             break
         log.info("a finer pass on %d points left unexplained: r0 = %.4g, %d thin points",
@@ -969,6 +970,31 @@ def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
     return tail
 
 
+#: Within this many radii of an open end, a spine bending more tightly than its radius (curvature times
+#: radius above 1: the surface would pass through itself) has turned to another tube's points -- a pipe's
+#: end among its neighbours' ends in a rack -- where no elbow bends so tightly.
+HOOK_RADII = 4.0
+#: Spine samples of that test.
+HOOK_SAMPLES = 600
+
+
+def _hooked_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
+    """Which of the fit's points lie towards an open end beyond a bend tighter than the radius within
+    HOOK_RADII of that end (they are fitted again without them)."""
+    tail = np.zeros(len(fit.t), bool)
+    if fit.closed:
+        return tail
+    t, pts = sample_arclength(fit.spine, HOOK_SAMPLES)
+    r = fit.radius(t)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    tight = curvature(fit.spine, t) * r > 1.0
+    for end, near in ((0, s <= HOOK_RADII * r), (1, s >= s[-1] - HOOK_RADII * r)):
+        hook = t[tight & near]
+        if ends[end] is None and len(hook):
+            tail |= fit.t <= hook.max() if end == 0 else fit.t >= hook.min()
+    return tail
+
+
 def _other_tube(fit: _BranchFit, guess: dict, side: tuple, rest: tuple) -> bool:
     """Whether one ``side`` of a fit's points is another tube than the ``rest``, each ``(mask, (a, b),
     share)`` over the spine's parameters [a, b]: their own pipe fits differ in radius
@@ -1001,9 +1027,12 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
         fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=job["refine"])
         if job["refine"]:
             fit, idx = _grow(points, fit, idx, i, estimates, job["curved"], job["kind"])
-            tail = _stray_tail(fit, estimates.guesses[i], estimates.skel.branches[i].ends)
+            ends = estimates.skel.branches[i].ends
+            tail = _stray_tail(fit, estimates.guesses[i], ends) | _hooked_end(fit, ends)
             if tail.any():
                 idx = idx[~tail]
+                if len(idx) < C.POINTS_PER_SEGMENT:
+                    return f"only {len(idx)} points lie on the tube between its hooked ends"
                 fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=True)
     except ReconstructionError as exc:
         if len(estimates.guesses) == 1:

@@ -75,7 +75,7 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     back) is two tubes in one place.  Neither is a pipe or canal surface.  Within ``junctions``
     (pairs of a point and a reach) the tubes meeting there are united and the spine is not checked.
     """
-    from .spine import sample_arclength
+    from .spine import curvature, sample_arclength
 
     t, pts = sample_arclength(spine, FOLD_SAMPLES)
     r = radius(t)
@@ -98,10 +98,7 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     turned = np.einsum("ij,ij->i", tangent[inside], tangent[ahead[inside]]) < 0
     if turned.any():
         return "the spine turns back on itself within a radius (a hook or a hairpin)"
-    second = spine.derivative(2)(t)
-    bend = np.linalg.norm(np.cross(tangent, second), axis=1) / np.maximum(
-        np.einsum("ij,ij->i", spine.derivative()(t), tangent) ** 2, 1e-300)
-    tight = float(np.mean(bend * r > 1.0))
+    tight = float(np.mean(curvature(spine, t) * r > 1.0))
     if tight > FOLD_BEND_SHARE:
         return (f"the spine bends more tightly than the tube's radius along {tight:.0%} of it (the surface "
                 "passes through itself)")
