@@ -444,7 +444,7 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
             log.info("the %d points left unexplained hold no further tubes (r0 = %.4g): no further pass", len(pool),
                      run.r0 * scan.scale)
             break
-        log.info("a finer pass on %d points left unexplained: r0 = %.4g, %d thin points",
+        log.info("a further pass on %d points left unexplained: r0 = %.4g, %d thin points",
                  len(pool), run.r0 * scan.scale, len(run.thin))
         run.pool = pool
         # What the last pass could not explain is this one's now: its thin points from those points (a
@@ -1032,7 +1032,7 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
             if tail.any():
                 idx = idx[~tail]
                 if len(idx) < C.POINTS_PER_SEGMENT:
-                    return f"only {len(idx)} points lie on the tube between its hooked ends"
+                    return f"only {len(idx)} points are left once the strays at its ends are cut"
                 fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=True)
     except ReconstructionError as exc:
         if len(estimates.guesses) == 1:
