@@ -356,16 +356,23 @@ def _resolved(scan: _Scan, k, given: dict, *, densify: bool, **options) -> _Pass
     radius r0 follows the neighbourhoods' size, not the tubes', and the parameters derived from it
     shrink the points to nothing that explains them.
     """
+    failed = None  # the sparsest subset whose normals did not gather
     while True:
         most = min(len(scan.all_pts), MAX_STAGE_POINTS)
         last = not densify or scan.draw is None or len(scan.pts) >= most
         try:
-            # The fallback only on the densest subset: normals that do not gather on a sparse subset of
-            # a scene are its sparseness, and a denser one resolves them.
-            run = _paper_stages(scan, k, given, fallback=last, **options)
+            # Normals that do not gather on a sparse subset of a scene may be its sparseness, which a
+            # denser subset resolves: the fallback only once none does.
+            run = _paper_stages(scan, k, given, fallback=last and failed is None, **options)
         except ReconstructionError:
-            if last:
+            if not last:
+                failed = scan if failed is None else failed
+            elif failed is None:
                 raise
+            else:
+                # They gather at no density (a one-sided scan of bark, coordinates quantised near the
+                # radius): cross-sections, on the sparsest subset, whose neighbourhoods span most of a tube.
+                return _paper_stages(failed, k, given, fallback=True, **options)
         else:
             if last:
                 return run
