@@ -323,3 +323,65 @@ def test_a_canal_across_a_gap_in_its_points_is_gapped():
         t = t[(t < 0.5) | (t > 0.5 + gap / 20.0)]
         fit = SimpleNamespace(t=t, residual=rng.normal(0.0, 0.01, len(t)), spine=spine)
         assert _gapped(fit, 1.0, closed=False) is gapped
+
+
+def _piece(a, b, radius: float = 1.0):
+    """A fitted straight piece from ``a`` to ``b`` (what :func:`_pieces_of_one_tube` looks at)."""
+    from types import SimpleNamespace
+
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    u = np.linspace(0.0, 1.0, 50)[:, None]
+    spine = pspline_fit(u[:, 0], (1 - u) * np.asarray(a, float) + u * np.asarray(b, float), n_segments=4)
+    return SimpleNamespace(closed=False, spine=spine, radius=constant_spline(radius))
+
+
+@pytest.mark.parametrize(("second", "radius", "ends", "paired_end"), [
+    (((16.0, 0, 0), (8.0, 0, 0)), 1.0, (None, None), 1),        # overlapping, the other way round
+    (((11.5, 0, 0), (20.0, 0, 0)), 1.1, (None, None), 0),       # a gap of 1.5 radii, radius 10 % larger
+    (((13.0, 0, 0), (20.0, 0, 0)), 1.0, (None, None), None),    # a gap of 3 radii: an occlusion's
+    (((8.0, 0, 0), (16.0, 0, 0)), 1.3, (None, None), None),     # overlapping, but 30 % larger
+    (((8.0, 0, 0), (16.0, 0, 0)), 1.0, (0, None), None),        # its end at a junction
+    (((8.0, 3.0, 0), (16.0, 3.0, 0)), 1.0, (None, None), None),  # a rack neighbour beside it
+    (((9.5, -5.0, 0), (9.5, 0.0, 0)), 1.0, (None, None), None),  # a side branch ending in it
+])
+def test_two_fitted_pieces_of_one_tube_are_paired(second, radius, ends, paired_end):
+    """A pipe from 0 to 10 and a second fitted piece: they are one tube's pieces only when each end
+    lies inside the other tube (continued a radius past its end), they run on one from the other, and
+    their radii are within 15 %."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _pieces_of_one_tube
+
+    fits = [_piece((0.0, 0, 0), (10.0, 0, 0)), _piece(*second, radius=radius)]
+    skel = SimpleNamespace(branches=[SimpleNamespace(ends=(None, None)), SimpleNamespace(ends=ends)])
+    assert _pieces_of_one_tube(fits, skel) == ([] if paired_end is None else [((0, 1), (1, paired_end))])
+
+
+def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
+    """The thin set of a pipe broke 4 radii short of its middle (as a scene's sparse subset leaves
+    it): the two pieces, each grown towards the other, are joined and fitted as one branch end to end
+    -- not one of them dropped as running inside the other, nor both written."""
+    from canalsurf.pipeline import _fit_network
+    from canalsurf.skeleton import Skeleton
+
+    rng = np.random.default_rng(0)
+    n = 20_000
+    x, angle = rng.uniform(0.0, 30.0, n), rng.uniform(0.0, 2 * np.pi, n)
+    r = 1.0 + rng.normal(scale=0.01, size=n)
+    points = np.c_[x, r * np.cos(angle), r * np.sin(angle)]
+    skel = Skeleton([_axis_branch(0.5, 12.0), _axis_branch(29.5, 16.0)], np.empty((0, 3)), 0.2)
+    skel, fits = _fit_network(points, skel, kind="auto", refine=True, noise=0.01, quantum=0.0,
+                              curved=np.ones(n, bool), kappa=np.ones(n))
+    (fit,) = fits
+    assert fit.kind == "pipe" and abs(float(fit.radius(0.5)) - 1.0) < 0.01
+    ends = np.sort(fit.spine(np.array([0.0, 1.0]))[:, 0])
+    assert ends[0] < 0.3 and ends[1] > 29.7
+    assert np.abs(fit.spine(np.linspace(0.0, 1.0, 200))[:, 1:]).max() < 0.02
+
+
+def _axis_branch(x0: float, x1: float):
+    from canalsurf.skeleton import SkeletonBranch
+
+    x = np.linspace(x0, x1, int(abs(x1 - x0) / 0.2) + 1)
+    return SkeletonBranch(np.c_[x, 0 * x, 0 * x], np.ones(len(x)), np.ones(len(x)), (None, None))

@@ -12,7 +12,7 @@ import pytest
 
 from canalsurf.errors import ReconstructionError
 from canalsurf.skeleton import (HAIRPIN_LEGS_RADII, MAX_JOIN_TURN, MIN_BRANCH_POINTS, SEPARATE_RADII, SPUR_RADII,
-                                Skeleton, SkeletonBranch, skeletonize, without_branches)
+                                Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches)
 
 SEED = 3
 N = 2000
@@ -567,3 +567,40 @@ def test_without_no_branches_is_the_same_skeleton():
     for new, old in zip(out.branches, skel.branches):
         np.testing.assert_array_equal(new.points, old.points)
         assert new.ends == old.ends
+
+
+# --------------------------------------------------------------------------------------------------
+# with_ends_joined
+
+
+def _line_branch(x0: float, x1: float, ends=(None, None)) -> SkeletonBranch:
+    x = np.arange(x0, x1 + 1e-9, 0.25) if x1 > x0 else np.arange(x0, x1 - 1e-9, -0.25)
+    return SkeletonBranch(np.c_[x, 0 * x, 0 * x], np.ones(len(x)), np.full(len(x), RADIUS), ends)
+
+
+@pytest.mark.parametrize(("b", "eb"), [((8.0, 20.0), 0), ((20.0, 8.0), 1), ((12.0, 20.0), 0)])
+def test_two_pieces_of_one_line_are_joined_without_doubling_back(b, eb):
+    """Two pieces of a line that overlap (8 to 10) or leave a gap (10 to 12), either way round, become
+    one branch in the first's place: it runs from 0 to 20 straight on (its vertices behind the first's
+    end left out), keeps the second's far junction, and the other branch stays unchanged."""
+    other = _line_branch(0.0, 5.0, (None, 0))
+    skel = Skeleton([other, _line_branch(0.0, 10.0), _line_branch(*b, (None, 0) if eb == 0 else (0, None))],
+                    np.array([[20.0, 0.0, 0.0]]), 0.25)
+    out, origin = with_ends_joined(skel, [((1, 1), (2, eb))])
+    assert origin == [0, None]
+    np.testing.assert_array_equal(out.branches[0].points, other.points)
+    joined = out.branches[1]
+    x = joined.points[:, 0]
+    assert np.all(np.diff(x) > 0) and x[0] == 0.0 and x[-1] == 20.0
+    assert joined.ends == (None, 0)
+    assert len(joined.weights) == len(joined.radius) == len(x)
+    np.testing.assert_array_equal(out.junctions, skel.junctions)
+
+
+def test_only_open_ends_are_joined_and_each_branch_once():
+    skel = Skeleton([_line_branch(0.0, 10.0, (None, 0)), _line_branch(10.0, 20.0), _line_branch(20.0, 30.0)],
+                    np.array([[10.0, 0.0, 0.0]]), 0.25)
+    with pytest.raises(ValueError, match="open ends"):
+        with_ends_joined(skel, [((0, 1), (1, 0))])
+    with pytest.raises(ValueError, match="only once"):
+        with_ends_joined(skel, [((1, 1), (2, 0)), ((2, 1), (0, 0))])

@@ -31,7 +31,7 @@ from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
-from .skeleton import Skeleton, SkeletonBranch, skeletonize, without_branches
+from .skeleton import Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches
 from .spine import arclength_reparametrize, constant_spline, curvature, curve_length, pspline_fit, sample_arclength
 
 __all__ = ["reconstruct", "STAGES"]
@@ -1155,6 +1155,79 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
         out.append(live[worst])
 
 
+#: Two fitted branches are pieces of one tube -- the thin set broke along it, or two passes each found
+#: a part -- when the open end of each lies inside the other's tube (continued straight PIECE_GAP_RADII
+#: radii past its end), they go on one from the other (their ends point against each other within
+#: MAX_PIECE_TURN degrees), and their radii differ by no more than MAX_GAP_RADIUS_CHANGE.  Left apart,
+#: the one more inside the other is dropped (the tube is cut short) or both stay (written twice).
+PIECE_GAP_RADII = 1.0
+MAX_PIECE_TURN = 30.0
+#: Spine samples per radius of that test.
+PIECE_SAMPLES_PER_RADIUS = 2
+
+
+def _pieces_of_one_tube(fits: list, skel: Skeleton) -> list:
+    """Pairs ``((a, ea), (b, eb))`` of open ends of fitted branches that are one tube's two pieces
+    (see PIECE_GAP_RADII), each branch in one pair at most, the pairs whose ends are closest first."""
+    pts, radius, ends = [], {}, {}
+    for i, f in enumerate(fits):
+        if not f or f.closed:
+            continue
+        radius[i] = r = float(np.mean(f.radius(np.linspace(0.0, 1.0, 64))))
+        n = max(INSIDE_SAMPLES, int(PIECE_SAMPLES_PER_RADIUS * curve_length(f.spine) / r))
+        tube = [sample_arclength(f.spine, n)[1]]
+        for e in (0, 1):
+            if skel.branches[i].ends[e] is None:
+                ends[i, e] = p, d = _end_frame(f.spine, e)
+                tube.append(p + np.outer(np.linspace(0.0, PIECE_GAP_RADII * r, PIECE_SAMPLES_PER_RADIUS + 1), d))
+        pts.append((i, np.vstack(tube)))
+    if len(ends) < 2:
+        return []
+    owner = np.concatenate([np.full(len(x), i) for i, x in pts])
+    pts = np.vstack([x for _, x in pts])
+    keys = list(ends)
+    # the other branches whose tube (continued past its open ends) holds each open end
+    inside = {}
+    for key, near in zip(keys, cKDTree(pts).query_ball_point([ends[k][0] for k in keys], max(radius.values()))):
+        near = np.asarray(near, int)
+        close = np.linalg.norm(pts[near] - ends[key][0], axis=1) < np.array([radius[o] for o in owner[near]])
+        inside[key] = set(owner[near[close]].tolist()) - {key[0]}
+    turn = -np.cos(np.radians(MAX_PIECE_TURN))
+    candidates = []
+    for a, ea in keys:
+        for b, eb in keys:
+            if (a < b and b in inside[a, ea] and a in inside[b, eb]
+                    and ends[a, ea][1] @ ends[b, eb][1] <= turn
+                    and abs(radius[a] - radius[b]) <= MAX_GAP_RADIUS_CHANGE * max(radius[a], radius[b])):
+                candidates.append((float(np.linalg.norm(ends[a, ea][0] - ends[b, eb][0])), (a, ea), (b, eb)))
+    pairs, taken = [], set()
+    for _, (a, ea), (b, eb) in sorted(candidates):
+        if not {a, b} & taken:
+            taken |= {a, b}
+            pairs.append(((a, ea), (b, eb)))
+    return pairs
+
+
+def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skeleton, list]:
+    """The skeleton and fits with each two pieces of one tube (:func:`_pieces_of_one_tube`) joined and
+    fitted as one branch -- where that fit is a tube; else both pieces stay as they were."""
+    pairs = _pieces_of_one_tube(fits, skel)
+    if not pairs:
+        return skel, fits
+    joined, origin = with_ends_joined(skel, pairs)
+    todo = [k for k, o in enumerate(origin) if o is None]
+    job = {**job, "estimates": _Estimates([_first_guess(b) for b in joined.branches], joined)}
+    # A joined branch takes the place of the first of its pair, so they come in that order.
+    by_first = dict(zip(sorted(a for (a, _), _ in pairs), _fit_all(todo, job, client)))
+    good = [pair for pair in pairs if not isinstance(by_first[pair[0][0]], str)]
+    log.info("%d of %d pairs of branches are pieces of one tube: joined", len(good), len(pairs))
+    if not good:
+        return skel, fits
+    joined, origin = with_ends_joined(skel, good) if len(good) < len(pairs) else (joined, origin)
+    firsts = iter(sorted(a for (a, _), _ in good))
+    return joined, [by_first[next(firsts)] if o is None else fits[o] for o in origin]
+
+
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
                  quantum: float, curved: np.ndarray, kappa: np.ndarray, client=None):
     """Fit every branch; drop those that are no tube and join the branches they separated.
@@ -1175,6 +1248,8 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             if isinstance(fit, str):
                 reason, fit = fit, False
             fits[i] = fit
+        if refine:
+            skel, fits = _joined_pieces(fits, skel, job, client)
         for i in _inside_others(fits, skel):
             reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
         drop = [i for i, f in enumerate(fits) if f is False]

@@ -385,6 +385,45 @@ def _cut_hairpins(branch: SkeletonBranch) -> list:
             for p in pieces if keep[p[0]] and len(p) >= 2]
 
 
+def with_ends_joined(skeleton: Skeleton, pairs) -> tuple[Skeleton, list]:
+    """The skeleton with each pair ``((a, ea), (b, eb))`` of open ends joined: branch ``a`` goes on from
+    its end ``ea`` into branch ``b`` at its end ``eb``, as one branch in ``a``'s place.
+
+    For the two pieces of one tube: where the thin set broke along it, or two passes each found a part
+    of it.  The vertices of ``b`` behind ``a``'s end (where the pieces overlap) are left out, so that
+    the joined polyline does not double back.  No branch may be in more than one pair.
+
+    Returns
+    -------
+    Skeleton
+    origin : list of int or None
+        For each new branch, the index of the old branch it is unchanged from, or ``None`` (joined).
+    """
+    joined, taken = {}, set()
+    for (a, ea), (b, eb) in pairs:
+        if {a, b} & taken or a == b:
+            raise ValueError(f"branches {a} and {b}: a branch can be joined only once")
+        taken |= {a, b}
+        first = skeleton.branches[a] if ea == 1 else _reversed(skeleton.branches[a])
+        second = skeleton.branches[b] if eb == 0 else _reversed(skeleton.branches[b])
+        if first.ends[1] is not None or second.ends[0] is not None:
+            raise ValueError(f"branches {a} and {b}: only open ends can be joined")
+        radius = max(float(np.median(first.radius)), float(np.median(second.radius)))
+        ahead = (second.points - first.points[-1]) @ -_inward(first, 1, radius) > 0
+        second = SkeletonBranch(second.points[ahead], second.weights[ahead], second.radius[ahead], second.ends)
+        joined[a] = _joined(first, second) if ahead.any() else SkeletonBranch(
+            first.points, first.weights, first.radius, (first.ends[0], second.ends[1]))
+    branches, origin = [], []
+    for i, branch in enumerate(skeleton.branches):
+        if i in joined:
+            branches.append(joined[i])
+            origin.append(None)
+        elif i not in taken:
+            branches.append(branch)
+            origin.append(i)
+    return Skeleton(branches, skeleton.junctions, skeleton.link), origin
+
+
 def _reversed(b: SkeletonBranch) -> SkeletonBranch:
     return SkeletonBranch(b.points[::-1], b.weights[::-1], b.radius[::-1], b.ends[::-1], b.closed)
 
