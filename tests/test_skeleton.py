@@ -604,3 +604,54 @@ def test_only_open_ends_are_joined_and_each_branch_once():
         with_ends_joined(skel, [((0, 1), (1, 0))])
     with pytest.raises(ValueError, match="only once"):
         with_ends_joined(skel, [((1, 1), (2, 0)), ((2, 1), (0, 0))])
+
+
+# --------------------------------------------------------------------------------------------------
+# broken tees
+
+
+def _polyline(*corners, radius: float, ends=(None, None), step: float = 0.1) -> SkeletonBranch:
+    pts = [np.asarray(corners[0], float)]
+    for a, b in zip(corners[:-1], corners[1:]):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        n = max(1, int(round(np.linalg.norm(b - a) / step)))
+        pts += [a + (b - a) * k / n for k in range(1, n + 1)]
+    pts = np.array(pts)
+    return SkeletonBranch(pts, np.ones(len(pts)), np.full(len(pts), radius), ends)
+
+
+@pytest.mark.parametrize(("run_end", "mended"), [
+    ((1.2, 0.0, 0.0), True),    # the run's far half stops 1.5 radii short of the corner, in line
+    ((2.5, 0.0, 0.0), False),   # 3 radii short: not at the corner
+    ((0.0, 0.0, 1.2), False),   # beside the corner, but not in line with either leg
+])
+def test_a_tee_whose_run_broke_off_at_the_junction_is_mended(run_end, mended):
+    """The thin set of a tee broke between the junction and the run's far half: the side branch and the
+    near half are one branch round a corner, the far half ends short of it.  Mended, the three meet at a
+    junction at the corner; an end farther off, or out of line, leaves the skeleton as it was."""
+    from canalsurf.skeleton import _broken_tees_mended
+
+    corner = _polyline((0.0, 5.0, 0.0), (0.0, 0.0, 0.0), (-8.0, 0.0, 0.0), radius=0.5)
+    direction = np.asarray(run_end) / np.linalg.norm(run_end)
+    run = _polyline(run_end, np.asarray(run_end) + 8.0 * direction, radius=0.8)
+    out = _broken_tees_mended(Skeleton([corner, run], np.empty((0, 3)), 0.1))
+    if not mended:
+        assert len(out.branches) == 2 and out.junctions.shape == (0, 3)
+        return
+    np.testing.assert_allclose(out.junctions, [[0.0, 0.0, 0.0]], atol=1e-9)
+    assert sorted(map(str, (b.ends for b in out.branches))) == ["(0, None)", "(0, None)", "(None, 0)"]
+    assert sum(b.weights.sum() for b in out.branches) == corner.weights.sum() + run.weights.sum()
+    side = next(b for b in out.branches if b.points[:, 1].max() > 1.0)
+    assert side.points[:, 0].min() > -0.05 and side.points[:, 1].min() == pytest.approx(0.0)
+
+
+def test_an_elbow_or_a_straight_branch_beside_an_end_is_no_broken_tee():
+    """An elbow alone, and an open end beside the middle of a straight branch, are left as they are."""
+    from canalsurf.skeleton import _broken_tees_mended
+
+    elbow = _polyline((0.0, 5.0, 0.0), (0.0, 0.0, 0.0), (-8.0, 0.0, 0.0), radius=0.5)
+    assert len(_broken_tees_mended(Skeleton([elbow], np.empty((0, 3)), 0.1)).branches) == 1
+    line = _polyline((-8.0, 0.0, 0.0), (8.0, 0.0, 0.0), radius=0.8)
+    side = _polyline((0.0, 1.2, 0.0), (0.0, 6.0, 0.0), radius=0.5)
+    out = _broken_tees_mended(Skeleton([line, side], np.empty((0, 3)), 0.1))
+    assert len(out.branches) == 2 and out.junctions.shape == (0, 3)

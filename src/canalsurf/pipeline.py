@@ -32,7 +32,8 @@ from .radius import curvature_radius, plausible_radius, prefer_canal, principal_
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches
-from .spine import arclength_reparametrize, constant_spline, curvature, curve_length, pspline_fit, sample_arclength
+from .spine import (arclength_reparametrize, constant_spline, curvature, curve_length, pspline_fit, reversed_spline,
+                    sample_arclength)
 
 __all__ = ["reconstruct", "STAGES"]
 
@@ -827,9 +828,10 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
             kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(points), rseg + 2, samples) else "pipe"
             if kind == "canal" and _gapped(fits["canal"], float(np.mean(samples)), closed):
                 kind = "pipe"
-        fit = fits[kind]
-        return _BranchFit(kind, fit.spine, fit.radius, closed, (None, None), eq6, (nseg, rseg),
-                          fit.residual, fit.t, points)
+        spine, radius, t = fits[kind].spine, fits[kind].radius, fits[kind].t
+        if not closed and _runs_back(spine, guess["spine"]):
+            spine, radius, t = reversed_spline(spine), reversed_spline(radius), 1.0 - t
+        return _BranchFit(kind, spine, radius, closed, (None, None), eq6, (nseg, rseg), fits[kind].residual, t, points)
     if kind == "auto":
         w, r_v, u = guess["w"], guess["r_v"], guess["u"]
         rss_pipe = float((w * (r_v - eq6) ** 2).sum())
@@ -840,6 +842,15 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
         radius_fn = constant_spline(eq6)
     t, residual = footpoints(points, spine, radius_fn, closed=closed)
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
+
+
+def _runs_back(spine: BSpline, guess: BSpline) -> bool:
+    """Whether an open fitted spine runs from its first estimate's last end to its first.
+
+    A short fit that started far off can swing round; the branch's ends (at a junction, or open) are
+    where its first estimate has them, so it is turned back."""
+    ends, start = spine(np.array([0.0, 1.0])), guess(np.array([0.0, 1.0]))
+    return bool(np.linalg.norm(ends - start[::-1], axis=1).sum() < np.linalg.norm(ends - start, axis=1).sum())
 
 
 def _gapped(fit: RefineResult, radius: float, closed: bool) -> bool:

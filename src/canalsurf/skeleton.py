@@ -60,6 +60,13 @@ END_DIRECTION_RADII = (2.0, 6.0)
 #: many of their radii is two tubes whose ends the thin set linked, and is cut apart: a 180-degree
 #: return bend's legs are 4 radii apart (short radius), a hose's or a cable's more.
 HAIRPIN_LEGS_RADII = 3.0
+#: An open end that stops within this many of its radii of a corner of another branch, where that branch
+#: turns by at least TEE_CORNER degrees, and that goes on straight into one leg of the corner (turning by at
+#: most TEE_STRAIGHT) is the far half of a tee's run, which the thin set broke off at the junction: the
+#: side branch and the near half of the run then make one branch round the corner.  The three meet there.
+BROKEN_TEE_RADII = 2.0
+TEE_CORNER = 45.0
+TEE_STRAIGHT = 30.0
 
 
 @dataclass
@@ -309,7 +316,61 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing) -> Skeleton:
         ends = (None, None) if loop else (None if ja is None else renumber[ja],
                                           None if jb is None else renumber[jb])
         branches += _cut_hairpins(SkeletonBranch(nodes[path], np.maximum(w, 0.0), r, ends, bool(loop)))
-    return Skeleton(branches, junctions, link)
+    return _broken_tees_mended(Skeleton(branches, junctions, link))
+
+
+def _broken_tees_mended(skeleton: Skeleton) -> Skeleton:
+    """The skeleton with each broken tee (see BROKEN_TEE_RADII) made a junction: the branch round the
+    corner is split there, and the broken-off half of the run ends there too."""
+    branches, junctions = list(skeleton.branches), skeleton.junctions
+    while (tee := _broken_tee(branches)) is not None:
+        k, e, i, v = tee
+        j = len(junctions)
+        junctions = np.vstack([junctions, branches[i].points[v]])
+        before, after = _split(branches[i], v, j)
+        ends = list(branches[k].ends)
+        ends[e] = j
+        b = branches[k]
+        branches[k] = SkeletonBranch(b.points, b.weights, b.radius, tuple(ends), b.closed)
+        branches[i:i + 1] = [before, after]
+    return Skeleton(branches, junctions, skeleton.link)
+
+
+def _split(b: SkeletonBranch, v: int, junction: int) -> tuple[SkeletonBranch, SkeletonBranch]:
+    """Branch ``b`` split at its vertex ``v`` into two that meet at ``junction`` (the vertex is in
+    both; its thin points weigh on the first only, so that none is counted twice)."""
+    w = b.weights.copy()
+    return (SkeletonBranch(b.points[:v + 1], w[:v + 1], b.radius[:v + 1], (b.ends[0], junction)),
+            SkeletonBranch(b.points[v:], np.r_[0.0, w[v + 1:]], b.radius[v:], (junction, b.ends[1])))
+
+
+def _broken_tee(branches: list) -> tuple | None:
+    """``(k, e, i, v)``: branch ``k``'s open end ``e`` is the broken-off half of a tee's run at vertex
+    ``v`` of branch ``i`` (see BROKEN_TEE_RADII); ``None`` if there is none."""
+    open_ends = [(k, e) for k, b in enumerate(branches) if not b.closed for e in (0, 1) if b.ends[e] is None]
+    if not open_ends or len(branches) < 2:
+        return None
+    owner = np.repeat(np.arange(len(branches)), [len(b.points) for b in branches])
+    radii = [float(np.median(b.radius)) for b in branches]
+    tree = cKDTree(np.vstack([b.points for b in branches]))
+    for k, e in open_ends:
+        b = branches[k]
+        end = b.points[0 if e == 0 else -1]
+        near = np.asarray(tree.query_ball_point(end, BROKEN_TEE_RADII * radii[k]), int)
+        for i in np.unique(owner[near]):
+            c = branches[i]
+            if i == k or c.closed:
+                continue
+            v = int(np.argmin(np.linalg.norm(c.points - end, axis=1)))
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(c.points, axis=0), axis=1))])
+            if min(s[v], s[-1] - s[v]) < END_DIRECTION_RADII[1] * float(c.radius[v]):
+                continue  # near an end of c: no corner to tell
+            radius = max(radii[k], radii[i])
+            before, after = _split(c, v, -1)
+            legs = (_inward(before, 1, radius), _inward(after, 0, radius))
+            if _turn(*legs) >= TEE_CORNER and min(_turn(_inward(b, e, radius), leg) for leg in legs) <= TEE_STRAIGHT:
+                return k, e, int(i), v
+    return None
 
 
 def _turn(into_before: np.ndarray, into_after: np.ndarray) -> np.ndarray:

@@ -26,6 +26,11 @@ def constant_spline(value: float) -> BSpline:
     return BSpline(np.r_[np.zeros(DEGREE + 1), np.ones(DEGREE + 1)], np.full(DEGREE + 1, float(value)), DEGREE)
 
 
+def reversed_spline(spline: BSpline) -> BSpline:
+    """The same curve (or function) on [0, 1] run the other way: ``t`` becomes ``1 - t``."""
+    return BSpline(1.0 - spline.t[::-1], spline.c[::-1], spline.k)
+
+
 def knots(n_segments: int, closed: bool) -> np.ndarray:
     """Knot vector on [0, 1]: clamped for open curves, periodically extended for closed ones."""
     inner = np.linspace(0.0, 1.0, n_segments + 1)
