@@ -339,9 +339,8 @@ def _broken_tees_mended(skeleton: Skeleton) -> Skeleton:
 def _split(b: SkeletonBranch, v: int, junction: int) -> tuple[SkeletonBranch, SkeletonBranch]:
     """Branch ``b`` split at its vertex ``v`` into two that meet at ``junction`` (the vertex is in
     both; its thin points weigh on the first only, so that none is counted twice)."""
-    w = b.weights.copy()
-    return (SkeletonBranch(b.points[:v + 1], w[:v + 1], b.radius[:v + 1], (b.ends[0], junction)),
-            SkeletonBranch(b.points[v:], np.r_[0.0, w[v + 1:]], b.radius[v:], (junction, b.ends[1])))
+    return (SkeletonBranch(b.points[:v + 1], b.weights[:v + 1], b.radius[:v + 1], (b.ends[0], junction)),
+            SkeletonBranch(b.points[v:], np.r_[0.0, b.weights[v + 1:]], b.radius[v:], (junction, b.ends[1])))
 
 
 def _broken_tee(branches: list) -> tuple | None:
