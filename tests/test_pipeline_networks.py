@@ -161,12 +161,14 @@ def test_a_plant_of_tubes_four_times_apart_in_radius_is_found_whole():
         assert b["radius_mean"] <= RADIUS_MEAN, (i, b)
 
 
-#: Share of a sparse plant's tubes found (covered by a branch), at the least.
-SPARSE_FOUND_SHARE = 0.9
+#: Share of a sparse plant's tubes found (covered by a branch), at the least: with about 8,000 points per
+#: tube, and with 2,000 - 2,500.
+FOUND_SHARE, FOUND_SHARE_SPARSEST = 0.95, 0.9
 
 
 @pytest.mark.parametrize(("bays", "n", "seed"), [(2, 120_000, 5), (2, 100_000, 1), (2, 400_000, 0),
-                                               (2, 400_000, 6), (2, 400_000, 7), (2, 400_000, 8)])
+                                               (2, 400_000, 4), (2, 400_000, 6), (2, 400_000, 7),
+                                               (2, 400_000, 8)])
 def test_a_sparse_plant_writes_no_tube_outside_its_claim(bays, n, seed):
     """Plants scanned sparsely for their size, where wrong tubes were written: a tube six times wider
     than the pipes (fitted to the tops of a rack, graded check), one branch turning back between two
@@ -175,8 +177,10 @@ def test_a_sparse_plant_writes_no_tube_outside_its_claim(bays, n, seed):
     accepted against a scan noise the sparse subset inflated (seed 6); a wavy pipe graded good against
     that noise (seed 7: the noise is now taken about quadrics, on the whole scan); a pipe whose end grew
     across a gap into thinner tubes' points (seed 8).  Every tube written is within what its quality
-    claims, and nine tubes in ten are found: a first subset too sparse for the scene is drawn denser
-    before its normals are given up for cross-sections (which found 2 - 5 of these 46 tubes)."""
+    claims, and most tubes are found: a first subset too sparse for the scene is drawn denser before its
+    normals are given up for cross-sections (which found 2 - 5 of these 46 tubes), and a further pass may
+    run at the scene's own scale after a finer one (seed 4: three rack pipes of radius 0.7 - 1.6 that the
+    first pass missed were left, 43 found)."""
     from canalsurf.metrics import model_error
     from canalsurf.quality import CLAIMS
 
@@ -186,7 +190,8 @@ def test_a_sparse_plant_writes_no_tube_outside_its_claim(bays, n, seed):
         claim = CLAIMS[e["quality"]]
         assert e["spine_mean"] <= claim["spine"] and e["radius_mean"] <= claim["radius"], e
     found = sum(b["covered"] >= COVERED for b in compare_network(network, truth)["branches"])
-    assert found >= SPARSE_FOUND_SHARE * len(truth.branches), found
+    share = FOUND_SHARE if n / len(truth.branches) > 5_000 else FOUND_SHARE_SPARSEST
+    assert found >= share * len(truth.branches), found
 
 
 def test_a_link_across_the_ends_of_two_pipes_is_no_tube():

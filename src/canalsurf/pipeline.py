@@ -322,8 +322,9 @@ EXPLAINED_RADII = 1.25
 #: median radius of what is left, about halving it).
 MAX_SCALE_PASSES = 4
 #: A further pass is kept only if the median radius of what it works on is at most this many times the
-#: previous pass's: else the points left are clutter, or tubes the previous scale already served.  It may
-#: be a little wider: thin tubes beside wider ones, which the previous scale left, read wider than they are.
+#: first pass's (the scan's median scale): else the points left are clutter.  It may be wider than the
+#: last pass's: a sparse first subset can miss tubes of the scan's own scale, which a pass after a finer
+#: one then finds, and thin tubes beside wider ones read a little wider than they are.
 MAX_SCALE_RATIO = 1.25
 #: A further pass runs only on at least this many unexplained points, and this share of the scan.
 MIN_PASS_POINTS = C.MAX_SHRINK_POINTS
@@ -448,7 +449,7 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         except ReconstructionError as exc:
             log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
             break
-        if run.r0 > MAX_SCALE_RATIO * coarser or _explained_share(run) < MIN_EXPLAINED_SHARE:
+        if run.r0 > MAX_SCALE_RATIO * first.r0 or _explained_share(run) < MIN_EXPLAINED_SHARE:
             log.info("the %d points left unexplained hold no further tubes (r0 = %.4g): no further pass", len(pool),
                      run.r0 * scan.scale)
             break
