@@ -390,13 +390,15 @@ def _axis_branch(x0: float, x1: float):
 def test_a_fit_that_swung_round_is_turned_back_to_its_estimate():
     """A side branch's fit that came out running from its junction end to its open end (as a short fit
     started far off can) is turned round, so that its ends stay the skeleton's; a fit that runs along its
-    estimate, or is only shorter, is left as it is."""
+    estimate, or is only shorter, is left as it is, as is a stub (no longer than 2 radii end to end)."""
     from canalsurf.pipeline import _runs_back
     from canalsurf.spine import pspline_fit, reversed_spline
 
     u = np.linspace(0.0, 1.0, 30)
     guess = pspline_fit(u, np.c_[-0.7 + 0.7 * u, -0.8 + 0.8 * u, 6.3 - 4.2 * u], n_segments=3)
     fit = pspline_fit(u, np.c_[0 * u, 0 * u, 7.7 - 3.3 * u], n_segments=3)
-    assert not _runs_back(fit, guess)
-    assert _runs_back(reversed_spline(fit), guess)
+    assert not _runs_back(fit, guess, 0.7)
+    assert _runs_back(reversed_spline(fit), guess, 0.7)
+    # a stub's direction is noise: not turned
+    assert not _runs_back(reversed_spline(fit), guess, 2.0)
     np.testing.assert_allclose(reversed_spline(fit)(u), fit(1.0 - u), atol=1e-12)

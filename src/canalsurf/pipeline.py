@@ -830,7 +830,7 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
             if kind == "canal" and _gapped(fits["canal"], float(np.mean(samples)), closed):
                 kind = "pipe"
         spine, radius, t = fits[kind].spine, fits[kind].radius, fits[kind].t
-        if not closed and _runs_back(spine, guess["spine"]):
+        if not closed and _runs_back(spine, guess["spine"], eq6):
             spine, radius, t = reversed_spline(spine), reversed_spline(radius), 1.0 - t
         return _BranchFit(kind, spine, radius, closed, (None, None), eq6, (nseg, rseg), fits[kind].residual, t, points)
     if kind == "auto":
@@ -845,13 +845,20 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
 
 
-def _runs_back(spine: BSpline, guess: BSpline) -> bool:
+def _runs_back(spine: BSpline, guess: BSpline, radius: float) -> bool:
     """Whether an open fitted spine runs from its first estimate's last end to its first.
 
     A short fit that started far off can swing round; the branch's ends (at a junction, or open) are
-    where its first estimate has them, so it is turned back."""
+    where its first estimate has them, so it is turned back.  Only where both run more than
+    TURN_CHORD_RADII radii from end to end: a stub's direction is noise."""
     ends, start = spine(np.array([0.0, 1.0])), guess(np.array([0.0, 1.0]))
-    return bool(np.linalg.norm(ends - start[::-1], axis=1).sum() < np.linalg.norm(ends - start, axis=1).sum())
+    chords = (ends[1] - ends[0], start[1] - start[0])
+    return bool(min(map(np.linalg.norm, chords)) > TURN_CHORD_RADII * radius and chords[0] @ chords[1] < 0
+                and np.linalg.norm(ends - start[::-1], axis=1).sum() < np.linalg.norm(ends - start, axis=1).sum())
+
+
+#: A fit is turned back to its estimate's direction only if both run more than this many radii end to end.
+TURN_CHORD_RADII = 2.0
 
 
 def _gapped(fit: RefineResult, radius: float, closed: bool) -> bool:
@@ -1176,6 +1183,8 @@ PIECE_GAP_RADII = 1.0
 MAX_PIECE_TURN = 30.0
 #: Spine samples per radius of that test.
 PIECE_SAMPLES_PER_RADIUS = 2
+#: The joined fit must fit its points within this many times the inlier RMS of the worse-fitting piece.
+JOINED_RMS_RATIO = 1.25
 
 
 def _pieces_of_one_tube(fits: list, skel: Skeleton) -> list:
@@ -1231,7 +1240,10 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skele
     job = {**job, "estimates": _Estimates([_first_guess(b) for b in joined.branches], joined)}
     # A joined branch takes the place of the first of its pair, so they come in that order.
     by_first = dict(zip(sorted(a for (a, _), _ in pairs), _fit_all(todo, job, client)))
-    good = [pair for pair in pairs if not isinstance(by_first[pair[0][0]], str)]
+    # Kept where the one fit is a tube and fits its points about as closely as the pieces did: a piece
+    # of a canal whose radius changes fast (a trunk's flare) may not go on into the other as one spline.
+    good = [((a, ea), (b, eb)) for (a, ea), (b, eb) in pairs if not isinstance(by_first[a], str)
+            and _quality(by_first[a])["rms"] <= JOINED_RMS_RATIO * max(_quality(fits[a])["rms"], _quality(fits[b])["rms"])]
     log.info("%d of %d pairs of branches are pieces of one tube: joined", len(good), len(pairs))
     if not good:
         return skel, fits
