@@ -279,6 +279,40 @@ def test_the_points_past_a_hook_at_an_open_end_are_cut(bend_radius, ends, cut):
     assert tail[t > straight + 0.1].all() if cut else not tail.any()
 
 
+@pytest.mark.parametrize(("sparse", "share", "stray", "ends", "cut"), [
+    # an end grown 8 radii across a rack's ends: a few inliers per radius among strays -- cut
+    (8.0, 0.05, 0.7, (None, None), True),
+    # ... but not at a junction's end, where the tubes unite
+    (8.0, 0.05, 0.7, (0, None), False),
+    # a tube sampled thinly towards its end: its sparse points lie on it -- kept
+    (8.0, 0.05, 0.0, (None, None), False),
+    # a stretch of strays of no more than POOR_GAP_RADII: an end's cap and clutter -- kept
+    (2.5, 0.05, 0.7, (None, None), False),
+    # a stretch with half the density of the rest (an occlusion's shadow) -- kept
+    (8.0, 0.5, 0.7, (None, None), False)])
+def test_a_sparse_stretch_of_strays_at_an_open_end_is_cut(sparse, share, stray, ends, cut):
+    """A pipe of radius 1 fitted along 20 radii of dense points whose spine runs on for ``sparse`` radii
+    past them, where it holds ``share`` of that density of inliers and a ``stray`` share of strays."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _sparse_end
+    from canalsurf.spine import pspline_fit
+
+    rng = np.random.default_rng(0)
+    length = 20.0 + sparse
+    dense = rng.uniform(sparse, length, 4000)
+    thin = rng.uniform(0.0, sparse, int(4000 / 20 * sparse * share))
+    strays = rng.uniform(0.0, sparse, int(len(thin) * stray / (1 - stray)))
+    x = np.concatenate([dense, thin, strays])
+    residual = np.concatenate([rng.normal(0.0, 0.01, len(dense) + len(thin)), rng.choice([-0.5, 0.5], len(strays))])
+    u = np.linspace(0.0, 1.0, 20)
+    fit = SimpleNamespace(closed=False, spine=pspline_fit(u, np.c_[length * u, 0 * u, 0 * u], n_segments=4),
+                          eq6=1.0, t=x / length, residual=residual)
+    tail = _sparse_end(fit, ends)
+    assert not tail[: len(dense)].any()
+    assert tail[len(dense):].mean() > 0.95 if cut else not tail.any()
+
+
 def test_a_tube_far_wider_than_its_points_moved_is_no_tube():
     """A fit seen from one side whose radius is several times the Eq. (6) radius of its points (how
     far they moved to the spine) left their scale; one near it, or one seen all round, is a tube."""

@@ -1021,6 +1021,36 @@ def _hooked_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
     return tail
 
 
+#: A stretch at an open end whose spine holds, per radius of its length, fewer of the fit's inliers than
+#: this share of the branch's median, and more strays than inliers, is no part of the tube if it runs
+#: more than POOR_GAP_RADII radii: an end that grew across the ends of a rack's pipes, fitting a few of
+#: each one's points, and found no gap among its inliers.  A tube sampled ever more thinly towards its
+#: end (a pipe running away from the scanner) keeps its points: they lie on it, not astray.
+SPARSE_END_SHARE = 0.25
+
+
+def _sparse_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
+    """Which of the fit's points lie in a sparse stretch of strays at an open end (SPARSE_END_SHARE;
+    they are fitted again without them)."""
+    tail = np.zeros(len(fit.t), bool)
+    if fit.closed or len(fit.t) < 2:
+        return tail
+    span = curve_length(fit.spine) / fit.eq6
+    stray = is_stray(fit.residual, fit.eq6)
+    along = np.minimum(fit.t * span, np.nextafter(span, 0))
+    for end in (0, 1):
+        if ends[end] is not None:
+            continue
+        radii = (along if end == 0 else span - along).astype(int)  # whole radii from this end
+        inliers = np.bincount(radii[~stray], minlength=int(np.ceil(span)))
+        dense = np.flatnonzero(inliers >= SPARSE_END_SHARE * np.median(inliers))
+        run = dense[0] if len(dense) else len(inliers)
+        sparse = radii < run
+        if run > POOR_GAP_RADII and stray[sparse].mean() > 0.5:
+            tail |= sparse
+    return tail
+
+
 def _other_tube(fit: _BranchFit, guess: dict, side: tuple, rest: tuple) -> bool:
     """Whether one ``side`` of a fit's points is another tube than the ``rest``, each ``(mask, (a, b),
     share)`` over the spine's parameters [a, b]: their own pipe fits differ in radius
@@ -1054,7 +1084,7 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
         if job["refine"]:
             fit, idx = _grow(points, fit, idx, i, estimates, job["curved"], job["kind"])
             ends = estimates.skel.branches[i].ends
-            tail = _stray_tail(fit, estimates.guesses[i], ends) | _hooked_end(fit, ends)
+            tail = _stray_tail(fit, estimates.guesses[i], ends) | _hooked_end(fit, ends) | _sparse_end(fit, ends)
             if tail.any():
                 idx = idx[~tail]
                 if len(idx) < C.POINTS_PER_SEGMENT:
