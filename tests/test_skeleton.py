@@ -645,13 +645,90 @@ def test_a_tee_whose_run_broke_off_at_the_junction_is_mended(run_end, mended):
     assert side.points[:, 0].min() > -0.05 and side.points[:, 1].min() == pytest.approx(0.0)
 
 
-def test_an_elbow_or_a_straight_branch_beside_an_end_is_no_broken_tee():
-    """An elbow alone, and an open end beside the middle of a straight branch, are left as they are."""
+def test_an_elbow_alone_is_no_broken_tee():
     from canalsurf.skeleton import _broken_tees_mended
 
     elbow = _polyline((0.0, 5.0, 0.0), (0.0, 0.0, 0.0), (-8.0, 0.0, 0.0), radius=0.5)
     assert len(_broken_tees_mended(Skeleton([elbow], np.empty((0, 3)), 0.1)).branches) == 1
-    line = _polyline((-8.0, 0.0, 0.0), (8.0, 0.0, 0.0), radius=0.8)
-    side = _polyline((0.0, 1.2, 0.0), (0.0, 6.0, 0.0), radius=0.5)
-    out = _broken_tees_mended(Skeleton([line, side], np.empty((0, 3)), 0.1))
-    assert len(out.branches) == 2 and out.junctions.shape == (0, 3)
+
+
+@pytest.mark.parametrize(("start", "direction", "mended"), [
+    ((0.0, 1.2, 0.0), (0.0, 1.0, 0.0), True),    # stops 0.4 off the run's surface, square to it
+    ((0.0, 3.0, 0.0), (0.0, 1.0, 0.0), False),   # 2.2 off: farther than SIDE_GAP_RADII of its radius
+    ((0.0, 1.2, 0.0), (0.0, 1.0, 2.0), False),   # points past the run's axis
+    ((-1.0, 1.2, 0.0), (-1.0, 1.0, 0.0), False),  # leaves the run at less than TEE_CORNER
+])
+def test_a_side_branch_that_stops_short_of_the_run_meets_it(start, direction, mended):
+    """A tee's side branch whose thin set broke short of the junction: its open end lies a little off the
+    run's tube and points into the run's axis. Mended, the run is split at the vertex it points to and
+    the three meet there; an end farther off, or aimed past the axis or along the run, is left open."""
+    from canalsurf.skeleton import _broken_tees_mended
+
+    run = _polyline((-8.0, 0.0, 0.0), (8.0, 0.0, 0.0), radius=0.8)
+    direction = np.asarray(direction) / np.linalg.norm(direction)
+    side = _polyline(start, np.asarray(start) + 5.0 * direction, radius=0.5)
+    out = _broken_tees_mended(Skeleton([run, side], np.empty((0, 3)), 0.1))
+    if not mended:
+        assert len(out.branches) == 2 and out.junctions.shape == (0, 3)
+        return
+    np.testing.assert_allclose(out.junctions, [[0.0, 0.0, 0.0]], atol=1e-9)
+    assert sorted(map(str, (b.ends for b in out.branches))) == ["(0, None)", "(0, None)", "(None, 0)"]
+    assert sum(b.weights.sum() for b in out.branches) == run.weights.sum() + side.weights.sum()
+
+
+# --------------------------------------------------------------------------------------------------
+# false junctions between tubes side by side
+
+
+def _rack_junction(side_corners, side_radius=0.5):
+    """A run of radius 0.8 along x through a junction at the origin, and a third branch from the
+    junction along ``side_corners``."""
+    left = _polyline((-10.0, 0.0, 0.0), (0.0, 0.0, 0.0), radius=0.8, ends=(None, 0))
+    right = _polyline((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), radius=0.8, ends=(0, None))
+    side = _polyline((0.0, 0.0, 0.0), *side_corners, radius=side_radius, ends=(0, None))
+    return Skeleton([left, right, side], np.zeros((1, 3)), 0.1)
+
+
+@pytest.mark.parametrize(("side", "parted"), [
+    # a rack neighbour 2 away, linked to the run by a short bridge: the junction is false
+    (((0.5, 2.0, 0.0), (10.0, 2.0, 0.0)), True),
+    # a tee's side branch, square to the run
+    (((0.0, 10.0, 0.0),), False),
+    # a lateral leaving the run at 10 degrees, overlapping it near the junction
+    (((10.0, 10.0 * np.tan(np.radians(10.0)), 0.0),), False),
+    # a neighbour that touches the run (1.1 apart, the radii sum to 1.3): one tube's surface meets the other's
+    (((0.5, 1.1, 0.0), (10.0, 1.1, 0.0)), False)])
+def test_a_neighbour_linked_beside_a_run_is_no_branch_of_it(side, parted):
+    """Parted, the run is one open branch through the false junction and the neighbour an open branch of
+    its own; every thin point is kept.  A branch that leaves the run at an angle, or that touches it,
+    keeps the junction."""
+    from canalsurf.skeleton import _bridges_parted
+
+    skel = _rack_junction(side)
+    out = _bridges_parted(skel)
+    if not parted:
+        assert out is skel
+        return
+    assert out.junctions.shape == (0, 3) and len(out.branches) == 2
+    assert all(b.ends == (None, None) for b in out.branches)
+    run = next(b for b in out.branches if np.abs(b.points[:, 1]).max() < 0.1)
+    assert np.ptp(run.points[:, 0]) == pytest.approx(20.0)
+    # the link to the junction is cut off the neighbour: it keeps within its radius of its line
+    neighbour = next(b for b in out.branches if b is not run)
+    assert np.abs(neighbour.points[:, 1] - 2.0).max() <= 0.5
+    assert sum(b.weights.sum() for b in out.branches) == pytest.approx(sum(b.weights.sum() for b in skel.branches))
+
+
+def test_two_runs_side_by_side_at_one_false_junction_are_two_branches():
+    """Two rack neighbours 2 apart whose four halves meet at one junction: two open branches, one along each."""
+    from canalsurf.skeleton import _bridges_parted
+
+    halves = [_polyline((-10.0, 0.0, 0.0), (0.0, 0.0, 0.0), radius=0.8, ends=(None, 0)),
+              _polyline((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), radius=0.8, ends=(0, None)),
+              _polyline((-10.0, 2.0, 0.0), (-0.5, 2.0, 0.0), (0.0, 0.0, 0.0), radius=0.5, ends=(None, 0)),
+              _polyline((0.0, 0.0, 0.0), (0.5, 2.0, 0.0), (10.0, 2.0, 0.0), radius=0.5, ends=(0, None))]
+    out = _bridges_parted(Skeleton(halves, np.zeros((1, 3)), 0.1))
+    assert out.junctions.shape == (0, 3) and len(out.branches) == 2
+    assert sorted(round(float(np.median(b.points[:, 1])), 6) for b in out.branches) == [0.0, 2.0]
+    assert all(np.ptp(b.points[:, 1]) <= np.median(b.radius) for b in out.branches)
+    assert all(np.ptp(b.points[:, 0]) == pytest.approx(20.0) for b in out.branches)

@@ -21,6 +21,7 @@ Trees that stand for too few points or are shorter than a radius are left out (s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import combinations
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -67,6 +68,19 @@ HAIRPIN_LEGS_RADII = 3.0
 BROKEN_TEE_RADII = 2.0
 TEE_CORNER = 45.0
 TEE_STRAIGHT = 30.0
+#: An open end that stops within this many of its radii of another branch's tube, beside the straight
+#: middle of it, and points into its axis (the continued end passes within that branch's radius of it,
+#: at TEE_CORNER degrees or more to it) is a tee's side branch whose thin set broke short of the junction.
+#: The three meet there.
+SIDE_GAP_RADII = 2.0
+
+#: Two tubes side by side (a rack's neighbours) whose thin sets a few stray points linked meet at a false
+#: junction.  Seen between BRIDGE_WINDOW_RADII (of the largest tube there) from it, past the link, two
+#: branches there that run parallel (within BRIDGE_PARALLEL degrees) and keep clear of each other (farther
+#: apart than their two radii) are such tubes; the end of each whose line misses the junction by more than
+#: its radius is linked to it, and is opened.  A real branch leaves a run at an angle, or overlaps it there.
+BRIDGE_WINDOW_RADII = (3.0, 8.0)
+BRIDGE_PARALLEL = 15.0
 
 
 @dataclass
@@ -316,14 +330,14 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing) -> Skeleton:
         ends = (None, None) if loop else (None if ja is None else renumber[ja],
                                           None if jb is None else renumber[jb])
         branches += _cut_hairpins(SkeletonBranch(nodes[path], np.maximum(w, 0.0), r, ends, bool(loop)))
-    return _broken_tees_mended(Skeleton(branches, junctions, link))
+    return _bridges_parted(_broken_tees_mended(Skeleton(branches, junctions, link)))
 
 
 def _broken_tees_mended(skeleton: Skeleton) -> Skeleton:
-    """The skeleton with each broken tee (see BROKEN_TEE_RADII) made a junction: the branch round the
-    corner is split there, and the broken-off half of the run ends there too."""
+    """The skeleton with each broken tee (see BROKEN_TEE_RADII and SIDE_GAP_RADII) made a junction: the
+    branch round the corner, or the run, is split there, and the broken-off branch ends there too."""
     branches, junctions = list(skeleton.branches), skeleton.junctions
-    while (tee := _broken_tee(branches)) is not None:
+    while (tee := _broken_tee(branches) or _detached_side(branches)) is not None:
         k, e, i, v = tee
         j = len(junctions)
         junctions = np.vstack([junctions, branches[i].points[v]])
@@ -334,6 +348,88 @@ def _broken_tees_mended(skeleton: Skeleton) -> Skeleton:
         branches[k] = SkeletonBranch(b.points, b.weights, b.radius, tuple(ends), b.closed)
         branches[i:i + 1] = [before, after]
     return Skeleton(branches, junctions, skeleton.link)
+
+
+def _bridges_parted(skeleton: Skeleton) -> Skeleton:
+    """The skeleton with each branch end at a false junction between tubes side by side opened (see
+    BRIDGE_WINDOW_RADII), the two halves of a tube opened there joined as one branch, and the junctions
+    left repaired (:func:`without_branches`)."""
+    ends_at = {}
+    for k, b in enumerate(skeleton.branches):
+        for e, j in enumerate(b.ends):
+            if j is not None and not b.closed:
+                ends_at.setdefault(j, []).append((k, e))
+    radius_of = [float(np.median(b.radius)) for b in skeleton.branches]
+    opened, seen, pairs, taken = set(), {}, [], set()
+    for j, members in ends_at.items():
+        radius = max(radius_of[k] for k, _ in members)
+        windows = {m: w for m in members if (w := _window(skeleton.branches[m[0]], m[1], radius)) is not None}
+        seen.update(windows)
+        here = set()
+        for a, b in combinations(windows, 2):
+            if a[0] != b[0] and _beside(windows[a], windows[b], radius_of[a[0]] + radius_of[b[0]]):
+                # Of two tubes side by side, the one whose line misses the junction is linked to it.
+                here |= {m for m in (a, b) if _off_line(skeleton.junctions[j][None], windows[m][0],
+                                                        _axis(windows[m]))[0] > radius_of[m[0]]}
+        opened |= here
+        for a, b in combinations(sorted(here), 2):
+            if not {a[0], b[0]} & taken and a[0] != b[0] and _in_line(windows[a], windows[b], radius):
+                taken |= {a[0], b[0]}
+                pairs.append((a, b))
+    if not opened:
+        return skeleton
+    branches = list(skeleton.branches)
+    for k, e in opened:
+        branches[k] = _unlinked(branches[k], e, seen[k, e])
+    joined, _ = with_ends_joined(Skeleton(branches, skeleton.junctions, skeleton.link), pairs)
+    return without_branches(joined, ())[0]
+
+
+def _window(b: SkeletonBranch, end: int, radius: float) -> np.ndarray | None:
+    """The branch's vertices between BRIDGE_WINDOW_RADII ``radius`` from its end ``end``, in order away
+    from it; ``None`` if it does not reach twice the first."""
+    pts = b.points if end == 0 else b.points[::-1]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    near, far = np.multiply(BRIDGE_WINDOW_RADII, radius)
+    inside = (s >= near) & (s <= far)
+    return pts[inside] if s[-1] >= 2 * near and inside.sum() >= 2 else None
+
+
+def _unlinked(b: SkeletonBranch, end: int, window: np.ndarray) -> SkeletonBranch:
+    """Branch ``b`` with its end ``end`` opened, less the vertices at that end that stray farther than its
+    radius from the line of its ``window`` (the link to the false junction); their thin points weigh on
+    the first vertex kept."""
+    a = b if end == 1 else _reversed(b)
+    off = _off_line(a.points, window[0], _axis(window)) > float(np.median(b.radius))
+    keep = len(off) - int(np.argmin(off[::-1]))  # window[0] lies on the line, so it is kept
+    weights = a.weights[:keep].copy()
+    weights[-1] += a.weights[keep:].sum()
+    a = SkeletonBranch(a.points[:keep], weights, a.radius[:keep], (a.ends[0], None), a.closed)
+    return a if end == 1 else _reversed(a)
+
+
+def _axis(window: np.ndarray) -> np.ndarray:
+    d = window[-1] - window[0]
+    return d / max(float(np.linalg.norm(d)), 1e-300)
+
+
+def _in_line(a: np.ndarray, b: np.ndarray, radius: float) -> bool:
+    """Whether two windows leaving one junction go on one from the other: opposed, and ``b`` on ``a``'s
+    line within ``radius``."""
+    da, db = _axis(a), _axis(b)
+    return bool(_turn(da, db) <= BRIDGE_PARALLEL and _off_line(b, a[0], da).max() <= radius)
+
+
+def _beside(window: np.ndarray, run: np.ndarray, clearance: float) -> bool:
+    """Whether a window runs parallel to a run's window and keeps farther than ``clearance`` from its line."""
+    d = _axis(run)
+    parallel = min(_turn(_axis(window), d), _turn(_axis(window), -d)) <= BRIDGE_PARALLEL
+    return bool(parallel and _off_line(window, run[0], d).min() > clearance)
+
+
+def _off_line(pts: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    rel = pts - origin
+    return np.linalg.norm(rel - np.outer(rel @ direction, direction), axis=1)
 
 
 def _split(b: SkeletonBranch, v: int, junction: int) -> tuple[SkeletonBranch, SkeletonBranch]:
@@ -371,6 +467,39 @@ def _broken_tee(branches: list) -> tuple | None:
                 return k, e, int(i), v
     return None
 
+
+def _detached_side(branches: list) -> tuple | None:
+    """``(k, e, i, v)``: branch ``k``'s open end ``e`` is a tee's side branch that stops short of the
+    straight run ``i`` at its vertex ``v`` (see SIDE_GAP_RADII); ``None`` if there is none."""
+    open_ends = [(k, e) for k, b in enumerate(branches) if not b.closed for e in (0, 1) if b.ends[e] is None]
+    if not open_ends or len(branches) < 2:
+        return None
+    radii = [float(np.median(b.radius)) for b in branches]
+    owner = np.repeat(np.arange(len(branches)), [len(b.points) for b in branches])
+    tree = cKDTree(np.vstack([b.points for b in branches]))
+    for k, e in open_ends:
+        b = branches[k]
+        end, out = b.points[0 if e == 0 else -1], -_inward(b, e, radii[k])
+        near = np.asarray(tree.query_ball_point(end, max(radii) + SIDE_GAP_RADII * radii[k]), int)
+        for i in np.unique(owner[near]):
+            c = branches[i]
+            if i == k or c.closed:
+                continue
+            v = int(np.argmin(np.linalg.norm(c.points - end, axis=1)))
+            axis = c.points[v]
+            if np.linalg.norm(axis - end) > radii[i] + SIDE_GAP_RADII * radii[k]:
+                continue
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(c.points, axis=0), axis=1))])
+            if min(s[v], s[-1] - s[v]) < END_DIRECTION_RADII[1] * radii[i]:
+                continue  # near an end of c: an elbow or two ends, not a run
+            before, after = _split(c, v, -1)
+            legs = (_inward(before, 1, radii[i]), _inward(after, 0, radii[i]))
+            ahead = float((axis - end) @ out)
+            aim = float(np.linalg.norm(axis - end - ahead * out))
+            if (_turn(*legs) < TEE_CORNER and ahead > 0 and aim <= radii[i]
+                    and abs(float(out @ legs[1])) <= np.cos(np.radians(TEE_CORNER))):
+                return k, e, int(i), v
+    return None
 
 def _turn(into_before: np.ndarray, into_after: np.ndarray) -> np.ndarray:
     """Degrees by which a path turns where it goes from the way ``into_before`` points back along it
@@ -469,7 +598,7 @@ def with_ends_joined(skeleton: Skeleton, pairs) -> tuple[Skeleton, list]:
         if first.ends[1] is not None or second.ends[0] is not None:
             raise ValueError(f"branches {a} and {b}: only open ends can be joined")
         radius = max(float(np.median(first.radius)), float(np.median(second.radius)))
-        ahead = (second.points - first.points[-1]) @ -_inward(first, 1, radius) > 0
+        ahead = (second.points - first.points[-1]) @ -_inward(first, 1, radius) >= 0
         second = SkeletonBranch(second.points[ahead], second.weights[ahead], second.radius[ahead], second.ends)
         joined[a] = _joined(first, second) if ahead.any() else SkeletonBranch(
             first.points, first.weights, first.radius, (first.ends[0], second.ends[1]))
