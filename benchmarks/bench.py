@@ -282,7 +282,8 @@ def dask_table(row: dict) -> str:
 def stream_table(rows: list) -> str:
     head = ("| points in the LAZ file | bays | file MB | generated in s | laspy alone s | canalsurf wall s | ratio "
             "| peak MB | of which reading s | stages s | points reconstructed | tubes found | junctions found "
-            "| branches outside their claim | spine mean % r (mean, worst over the tubes found) | radius err % r (worst) | targets met |")
+            "| branches outside their claim | spine mean % r (mean, worst over the tubes found) "
+            "| radius err % r (worst) | targets met |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for row in rows:
         start = (f"| {row['points']:,} | {row['size']} | {row['bytes'] / 2**20:.0f} | {row['generate']:.0f} | "
@@ -508,7 +509,8 @@ def main(argv=None) -> int:
                "reconstructs a seeded sample of `STREAM_POINTS` of its points (*of which reading*: the time it "
                "takes to read the file and keep the sample; *stages*: the pipeline's stages, as in the tables "
                "above); *ratio* = canalsurf / laspy; tubes and junctions found, branches outside their claim and "
-               f"the accuracy as in the scene row. Targets: no branch outside its claim, ratio ≤ {STREAM_TARGETS[0]:g} and peak ≤ {STREAM_TARGETS[1]:,} MB; for "
+               f"the accuracy as in the scene row. Targets: no branch outside its claim, ratio ≤ "
+               f"{STREAM_TARGETS[0]:g} and peak ≤ {STREAM_TARGETS[1]:,} MB; for "
                f"{PLANT_POINTS:,} points also every tube found, each tube's spine mean ≤ {100 * PLANT_TARGETS[1]:g} % r "
                f"and wall ≤ {PLANT_TARGETS[0]:g} s (the plant-scale bar: 10⁷ points of 200 tubes and more, "
                "`--stream 10000000 --bays 9`).\n\n" + stream + "\n")
