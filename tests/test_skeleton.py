@@ -662,7 +662,7 @@ def test_an_elbow_alone_is_no_broken_tee():
     ((0.0, 1.2, 0.0), (0.0, 1.0, 0.0), True),    # stops 0.4 off the run's surface, square to it
     ((0.0, 3.0, 0.0), (0.0, 1.0, 0.0), False),   # 2.2 off: farther than SIDE_GAP_RADII of its radius
     ((0.0, 1.2, 0.0), (0.0, 1.0, 2.0), False),   # points past the run's axis
-    ((-2.0, 1.2, 0.0), (-2.0, 1.0, 0.0), False),  # leaves the run at 27 degrees, less than TEE_CORNER
+    ((0.0, 0.6, 0.0), (-2.0, 1.0, 0.0), False),   # aims at the axis, but leaves the run at 27 degrees
 ])
 def test_a_side_branch_that_stops_short_of_the_run_meets_it(start, direction, mended):
     """A tee's side branch whose thin set broke short of the junction: its open end lies a little off the
