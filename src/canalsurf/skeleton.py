@@ -442,64 +442,58 @@ def _split(b: SkeletonBranch, v: int, junction: int) -> tuple[SkeletonBranch, Sk
 def _broken_tee(branches: list) -> tuple | None:
     """``(k, e, i, v)``: branch ``k``'s open end ``e`` is the broken-off half of a tee's run at vertex
     ``v`` of branch ``i`` (see BROKEN_TEE_RADII); ``None`` if there is none."""
-    open_ends = [(k, e) for k, b in enumerate(branches) if not b.closed for e in (0, 1) if b.ends[e] is None]
-    if not open_ends or len(branches) < 2:
-        return None
-    owner = np.repeat(np.arange(len(branches)), [len(b.points) for b in branches])
     radii = [float(np.median(b.radius)) for b in branches]
-    tree = cKDTree(np.vstack([b.points for b in branches]))
-    for k, e in open_ends:
-        b = branches[k]
-        end = b.points[0 if e == 0 else -1]
-        near = np.asarray(tree.query_ball_point(end, BROKEN_TEE_RADII * radii[k]), int)
-        for i in np.unique(owner[near]):
-            c = branches[i]
-            if i == k or c.closed:
-                continue
-            v = int(np.argmin(np.linalg.norm(c.points - end, axis=1)))
-            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(c.points, axis=0), axis=1))])
-            if min(s[v], s[-1] - s[v]) < END_DIRECTION_RADII[1] * float(c.radius[v]):
-                continue  # near an end of c: no corner to tell
-            radius = max(radii[k], radii[i])
-            before, after = _split(c, v, -1)
-            legs = (_inward(before, 1, radius), _inward(after, 0, radius))
-            if _turn(*legs) >= TEE_CORNER and min(_turn(_inward(b, e, radius), leg) for leg in legs) <= TEE_STRAIGHT:
-                return k, e, int(i), v
+    for k, e, i, v, s in _ends_beside(branches, BROKEN_TEE_RADII * np.array(radii)):
+        b, c = branches[k], branches[i]
+        if min(s[v], s[-1] - s[v]) < END_DIRECTION_RADII[1] * float(c.radius[v]):
+            continue  # near an end of c: no corner to tell
+        radius = max(radii[k], radii[i])
+        before, after = _split(c, v, -1)
+        legs = (_inward(before, 1, radius), _inward(after, 0, radius))
+        if _turn(*legs) >= TEE_CORNER and min(_turn(_inward(b, e, radius), leg) for leg in legs) <= TEE_STRAIGHT:
+            return k, e, i, v
     return None
 
 
 def _detached_side(branches: list) -> tuple | None:
     """``(k, e, i, v)``: branch ``k``'s open end ``e`` is a tee's side branch that stops short of the
     straight run ``i`` at its vertex ``v`` (see SIDE_GAP_RADII); ``None`` if there is none."""
+    radii = [float(np.median(b.radius)) for b in branches]
+    for k, e, i, v, s in _ends_beside(branches, max(radii, default=0.0) + SIDE_GAP_RADII * np.array(radii)):
+        b, c = branches[k], branches[i]
+        end, out = b.points[0 if e == 0 else -1], -_inward(b, e, radii[k])
+        axis = c.points[v]
+        if np.linalg.norm(axis - end) > radii[i] + SIDE_GAP_RADII * radii[k]:
+            continue
+        if min(s[v], s[-1] - s[v]) < END_DIRECTION_RADII[1] * radii[i]:
+            continue  # near an end of c: an elbow or two ends, not a run
+        before, after = _split(c, v, -1)
+        legs = (_inward(before, 1, radii[i]), _inward(after, 0, radii[i]))
+        ahead = float((axis - end) @ out)
+        aim = float(np.linalg.norm(axis - end - ahead * out))
+        if (_turn(*legs) < TEE_CORNER and ahead > 0 and aim <= radii[i]
+                and abs(float(out @ legs[1])) <= np.cos(np.radians(TEE_CORNER))):
+            return k, e, i, v
+    return None
+
+
+def _ends_beside(branches: list, reach: np.ndarray):
+    """``(k, e, i, v, s)`` for each open end ``e`` of branch ``k`` and each other open branch ``i`` with a
+    vertex within ``reach[k]`` of that end: ``v`` is i's vertex nearest the end, ``s`` i's arc lengths."""
     open_ends = [(k, e) for k, b in enumerate(branches) if not b.closed for e in (0, 1) if b.ends[e] is None]
     if not open_ends or len(branches) < 2:
-        return None
-    radii = [float(np.median(b.radius)) for b in branches]
+        return
     owner = np.repeat(np.arange(len(branches)), [len(b.points) for b in branches])
     tree = cKDTree(np.vstack([b.points for b in branches]))
     for k, e in open_ends:
-        b = branches[k]
-        end, out = b.points[0 if e == 0 else -1], -_inward(b, e, radii[k])
-        near = np.asarray(tree.query_ball_point(end, max(radii) + SIDE_GAP_RADII * radii[k]), int)
-        for i in np.unique(owner[near]):
+        end = branches[k].points[0 if e == 0 else -1]
+        for i in np.unique(owner[np.asarray(tree.query_ball_point(end, reach[k]), int)]):
             c = branches[i]
             if i == k or c.closed:
                 continue
             v = int(np.argmin(np.linalg.norm(c.points - end, axis=1)))
-            axis = c.points[v]
-            if np.linalg.norm(axis - end) > radii[i] + SIDE_GAP_RADII * radii[k]:
-                continue
-            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(c.points, axis=0), axis=1))])
-            if min(s[v], s[-1] - s[v]) < END_DIRECTION_RADII[1] * radii[i]:
-                continue  # near an end of c: an elbow or two ends, not a run
-            before, after = _split(c, v, -1)
-            legs = (_inward(before, 1, radii[i]), _inward(after, 0, radii[i]))
-            ahead = float((axis - end) @ out)
-            aim = float(np.linalg.norm(axis - end - ahead * out))
-            if (_turn(*legs) < TEE_CORNER and ahead > 0 and aim <= radii[i]
-                    and abs(float(out @ legs[1])) <= np.cos(np.radians(TEE_CORNER))):
-                return k, e, int(i), v
-    return None
+            yield k, e, int(i), v, np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(c.points, axis=0), axis=1))])
+
 
 def _turn(into_before: np.ndarray, into_after: np.ndarray) -> np.ndarray:
     """Degrees by which a path turns where it goes from the way ``into_before`` points back along it
