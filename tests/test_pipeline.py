@@ -247,6 +247,42 @@ def test_what_lies_past_a_long_gap_at_an_open_end_is_cut_unless_it_is_the_same_t
     assert tail[5000:].mean() > 0.99 if cut else not tail.any()
 
 
+@pytest.mark.parametrize(("reach", "ends", "cut"), [
+    # the estimate was the link alone: the tube past the gap is another, at an open end or a junction's
+    (3.0, (0, None), "tube"), (3.0, (None, None), "tube"),
+    # the estimate ran round to the tube: the larger side is the branch's, the link is cut at an open end
+    (None, (0, None), None), (None, (None, None), "link")])
+def test_a_tube_a_link_grew_into_across_a_gap_is_cut_however_many_points_it_holds(reach, ends, cut):
+    """A link of radius 0.6 over x in [0, 3] (600 points) whose fit grew across a gap of 7 radii and round
+    a bend into a tube of radius 1 along -y at x = 9.5 (4,000 points): a link at a false junction between
+    two pipes' ends that grew into a third pipe beside them.  Where the first estimate (``reach`` along x;
+    ``None``: the whole fitted spine) never crossed the gap, what lies past it is cut however many points
+    it holds; where it did, the larger side is the branch's tube, as before."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _stray_tail
+    from canalsurf.refine import footpoints
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    rng = np.random.default_rng(0)
+    points = np.concatenate([_pipe_points(0.6, 0, 3, 600, rng),
+                             _pipe_points(1.0, 0, 10, 4000, rng)[:, [1, 0, 2]] * [1, -1, 1] + [9.5, 0, 0]])
+    a, theta, b = np.linspace(0, 8.5, 60), np.linspace(0, np.pi / 2, 30)[1:], np.linspace(1, 10, 60)
+    path = np.concatenate([np.c_[a, 0 * a, 0 * a], np.c_[8.5 + np.sin(theta), np.cos(theta) - 1, 0 * theta],
+                           np.c_[9.5 + 0 * b, -b, 0 * b]])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    spine = pspline_fit(s / s[-1], path, n_segments=16)
+    radius = pspline_fit(s / s[-1], np.where(s < 3, 0.6, 1.0), n_segments=16)
+    t, residual = footpoints(points, spine, radius, closed=False)
+    fit = SimpleNamespace(closed=False, spine=spine, radius=radius, t=t, residual=residual, points=points, eq6=0.8)
+    u = np.linspace(0.0, 1.0, 20)
+    estimate = spine if reach is None else pspline_fit(u, np.c_[reach * u, np.zeros((20, 2))], n_segments=3)
+    guess = {"spine": estimate, "radius": constant_spline(0.8), "eq6": 0.8, "segments": (16, 8), "closed": False}
+    tail = _stray_tail(fit, guess, ends)
+    link, tube = tail[:600].mean(), tail[600:].mean()
+    assert (link > 0.75 if cut == "link" else link == 0) and (tube > 0.95 if cut == "tube" else tube == 0)
+
+
 def _hooked_spine(bend_radius: float, straight: float = 10.0, tail: float = 1.0):
     """A spine straight for ``straight``, then turning 90 degrees round ``bend_radius``, then ``tail`` on."""
     from canalsurf.spine import pspline_fit

@@ -973,7 +973,9 @@ MAX_GAP_RADIUS_CHANGE = 0.15
 
 def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
     """Which of the fit's points lie past its widest gap, towards an open end, and are not the same
-    tube (MAX_TAIL_SHARE, MAX_GAP_RADIUS_CHANGE); ``guess`` is the branch's first estimate."""
+    tube (MAX_TAIL_SHARE, MAX_GAP_RADIUS_CHANGE); ``guess`` is the branch's first estimate.  Past a gap
+    the estimate never crossed, the fit grew into another tube however many points that holds: a link
+    between two tubes' ends that grew across the gap to a third."""
     tail = np.zeros(len(fit.t), bool)
     if fit.closed or len(fit.t) < 2:
         return tail
@@ -987,11 +989,16 @@ def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
     before = (widest + 1) / len(inlier)  # share of the inliers before the gap
     sides = ((fit.t <= inlier[widest], (0.0, inlier[widest]), before),
              (fit.t >= inlier[widest + 1], (inlier[widest + 1], 1.0), 1 - before))
+    t, pts = sample_arclength(fit.spine, HOOK_SAMPLES)
+    reach = t[np.argmin(np.linalg.norm(pts[:, None] - guess["spine"](np.array([0.0, 1.0])), axis=2), axis=0)]
+    grown = (reach[0] > inlier[widest], reach[1] < inlier[widest + 1])  # the estimate never crossed the gap
     for end in (0, 1):
         side, span, share = sides[end]
-        # The smaller side is the one in question: of two that differ, the larger is the branch's tube.
-        if ends[end] is None and (share < MAX_TAIL_SHARE or share < 0.5 and _other_tube(fit, guess, sides[end],
-                                                                                          sides[1 - end])):
+        # Of two sides that differ, the branch's tube is the one its estimate reached; where it reached
+        # both, the larger.
+        theirs = grown[end] or share < 0.5 and not grown[1 - end]
+        if ends[end] is None and (share < MAX_TAIL_SHARE or theirs and _other_tube(fit, guess, sides[end],
+                                                                                     sides[1 - end])):
             tail |= side
     return tail
 
