@@ -450,6 +450,30 @@ def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
     assert np.abs(fit.spine(np.linspace(0.0, 1.0, 200))[:, 1:]).max() < 0.02
 
 
+def test_a_stray_thin_point_at_an_open_end_does_not_stop_the_fit_short():
+    """A pipe of radius 1 over x in [0, 20] whose skeleton branch ends in one stray thin point with r_i 3.5:
+    the first estimate's radius holds near 1 to the end and the fit reaches it; a cone's radii, which
+    change steadily, are the estimate's as they are."""
+    from canalsurf.pipeline import _first_guess, _fit_network
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    rng = np.random.default_rng(3)
+    n = 20000
+    x, angle = rng.uniform(0.0, 20.0, n), rng.uniform(0.0, 2 * np.pi, n)
+    r = 1.0 + rng.normal(scale=0.01, size=n)
+    points = np.c_[x, r * np.cos(angle), r * np.sin(angle)]
+    branch = _axis_branch(0.5, 19.5)
+    weights = np.r_[np.full(len(branch.points) - 1, 10.0), 1.0]
+    radius = np.r_[np.ones(len(branch.points) - 1), 3.5]
+    branch = SkeletonBranch(branch.points, weights, radius, (None, None))
+    assert abs(float(_first_guess(branch)["radius"](1.0)) - 1.0) < 0.1
+    skel, (fit,) = _fit_network(points, Skeleton([branch], np.empty((0, 3)), 0.2), kind="auto", refine=True,
+                                noise=0.01, quantum=0.0, curved=np.ones(n, bool), kappa=np.ones(n))
+    assert np.sort(fit.spine(np.array([0.0, 1.0]))[:, 0])[1] > 19.7
+    cone = SkeletonBranch(branch.points, weights, np.linspace(1.0, 0.5, len(branch.points)), (None, None))
+    np.testing.assert_array_equal(_first_guess(cone)["r_v"], cone.radius)
+
+
 def _axis_branch(x0: float, x1: float):
     from canalsurf.skeleton import SkeletonBranch
 

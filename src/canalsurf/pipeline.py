@@ -685,6 +685,30 @@ def _thin(shrunk, H):
 # fit each branch
 
 
+#: Of the R_I_WINDOW skeleton vertices at an open end, one whose r_i exceeds their median by more than
+#: R_I_OUTLIER times takes that median in the first estimate's radius function: a stray thin point at
+#: an open end (r_i 3.5 on a pipe of radius 1) would swing the radius spline there, its continuation
+#: past the end would grow faster than its length, and the scan's points beside the end would be
+#: nearest to no estimate: the fit stops short.  The vertices lie about half a radius apart; no tube's
+#: radius doubles within two radii.
+R_I_OUTLIER = 2.0
+R_I_WINDOW = 5
+
+
+def _steady(r: np.ndarray, ends: tuple) -> np.ndarray:
+    """The radii ``r`` of a branch's vertices with the outliers at its open ``ends`` (R_I_OUTLIER) replaced.
+
+    At a junction the r_i change fast (the tubes unite), and a small r_i at an end (its cap) swings the
+    estimate's radius no wider: those are kept.
+    """
+    r = r.copy()
+    for end, window in ((0, slice(0, R_I_WINDOW)), (1, slice(-R_I_WINDOW, None))):
+        if ends[end] is None and len(r) >= R_I_WINDOW:
+            median = np.median(r[window])
+            r[window] = np.where(r[window] > R_I_OUTLIER * median, median, r[window])
+    return r
+
+
 def _first_guess(branch: SkeletonBranch) -> dict:
     """Spline through a skeleton branch by arc length, its radius function and Eq. (6) radius."""
     steps = np.linalg.norm(np.diff(branch.points, axis=0), axis=1)
@@ -693,15 +717,16 @@ def _first_guess(branch: SkeletonBranch) -> dict:
     w = branch.weights
     n_thin = int(w.sum())
     r_b = float(np.average(branch.radius, weights=w))  # Eq. (6) over the branch's points
+    r_v = branch.radius if branch.closed else _steady(branch.radius, branch.ends)
     # A loop's periodic splines need more segments than their degree.
     least = 4 if branch.closed else 1
     nseg = max(least, _segments(length, C.SPINE_KNOTS_PER_RADIUS * r_b, n_thin))
     rseg = max(least, _segments(length, C.RADIUS_KNOTS_PER_RADIUS * r_b, n_thin))
     u = s / length
     spine = pspline_fit(u, branch.points, n_segments=nseg, closed=branch.closed, weights=w)
-    radius = pspline_fit(u, branch.radius, n_segments=rseg, closed=branch.closed, weights=w)
+    radius = pspline_fit(u, r_v, n_segments=rseg, closed=branch.closed, weights=w)
     return {"spine": spine, "radius": radius, "eq6": r_b, "segments": (nseg, rseg), "closed": branch.closed,
-            "u": u, "r_v": branch.radius, "w": w}
+            "u": u, "r_v": r_v, "w": w}
 
 
 #: The final fit takes at least MAX_FIT_POINTS of the scan's points, and this many per branch of the
