@@ -453,7 +453,7 @@ def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
 def test_a_stray_thin_point_at_an_open_end_does_not_stop_the_fit_short():
     """A pipe of radius 1 over x in [0, 20] whose skeleton branch ends in one stray thin point with r_i 3.5:
     the first estimate's radius holds near 1 to the end and the fit reaches it; a cone's radii, which
-    change steadily, are the estimate's as they are."""
+    change steadily, are the estimate's as they are, as are those at a junction's end."""
     from canalsurf.pipeline import _first_guess, _fit_network
     from canalsurf.skeleton import Skeleton, SkeletonBranch
 
@@ -472,6 +472,9 @@ def test_a_stray_thin_point_at_an_open_end_does_not_stop_the_fit_short():
     assert np.sort(fit.spine(np.array([0.0, 1.0]))[:, 0])[1] > 19.7
     cone = SkeletonBranch(branch.points, weights, np.linspace(1.0, 0.5, len(branch.points)), (None, None))
     np.testing.assert_array_equal(_first_guess(cone)["r_v"], cone.radius)
+    # at a junction's end the r_i change fast (the tubes unite there): kept
+    joined = SkeletonBranch(branch.points, weights, radius, (None, 0))
+    np.testing.assert_array_equal(_first_guess(joined)["r_v"], radius)
 
 
 def _axis_branch(x0: float, x1: float):
