@@ -34,6 +34,20 @@ def test_each_reason_sets_its_level(change, level, words):
     assert len(reasons) >= 1 and words in reasons[0]
 
 
+@pytest.mark.parametrize("stretches, level", [
+    # a quarter of its stretches seen over narrow arcs: poor, whatever the median
+    ([109.0, 36.0, 214.0, 208.0, 226.0], "poor"), ([100.0, 340.0, 340.0, 340.0], "poor"),
+    # one narrow stretch in five: the median's grade
+    ([100.0, 340.0, 340.0, 340.0, 340.0], "good"), ([100.0, 200.0, 200.0, 200.0, 200.0], "check")])
+def test_a_branch_seen_over_narrow_arcs_along_a_quarter_of_it_is_poor(stretches, level):
+    """A tube fitted to the sides of different limbs (one stretch seen from below, the next from one
+    flank) reads as seen over 208 degrees on the median alone."""
+    median = float(np.median(stretches))
+    quality, reasons = branch_quality(**{**CLEAN, "coverage": median}, stretches=np.array(stretches))
+    assert quality == level
+    assert any("less than 120 degrees" in r for r in reasons) == (level == "poor")
+
+
 def test_random_noise_alone_is_no_reason():
     """Noise that the scan itself shows (its points scatter about their local planes as much) averages
     out in the fit: 6 % of the radius with the scan's noise at 6 % is good."""

@@ -1500,14 +1500,14 @@ def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: 
         t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
         stray = is_stray(residual, fit.eq6)
         near = ~stray
-        coverage = angular_coverage(fit.points[near], fit.spine, t[near])
-        coverage = float(np.median(coverage)) if len(coverage) else float("nan")
+        stretches = angular_coverage(fit.points[near], fit.spine, t[near])
+        coverage = float(np.median(stretches)) if len(stretches) else float("nan")
         rms = float(np.sqrt(np.mean(residual[near] ** 2))) if near.any() else float("inf")
         mean_r = float(np.mean(fit.radius(np.linspace(0, 1, 200))))
         level, reasons = branch_quality(
             rms=rms, radius=mean_r, noise=noise, coverage=coverage,
             gap=support_gap(t[near], curve_length(fit.spine), fit.closed),
-            out_of_round=roundness(fit.points[near], fit.spine, t[near], residual[near]))
+            out_of_round=roundness(fit.points[near], fit.spine, t[near], residual[near]), stretches=stretches)
         branches.append(CanalModel(fit.kind, fit.spine, fit.radius, fit.closed, diagnostics={
             "quality": level, "quality_reasons": reasons,
             "n_points": int(len(fit.points)), "eq6_radius": fit.eq6, "inlier_rms_residual": rms,

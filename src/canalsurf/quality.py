@@ -40,6 +40,11 @@ CHECK_ROUND_RADII = 0.04
 #: Angular coverage below ONE_SIDED_DEGREES is ``check`` (the radius comes from a partial arc);
 #: below this, ``poor``.
 POOR_COVERAGE_DEGREES = 120.0
+#: ... and ``poor`` too where this share of a branch's stretches is seen over less than
+#: POOR_COVERAGE_DEGREES, whatever the median: there its spine and radius rest on narrow arcs, and a
+#: tube fitted to the sides of different limbs (one stretch seen from below, the next from one flank)
+#: reads as well covered on the median alone.
+POOR_COVERAGE_SHARE = 0.25
 #: A gap along the spine with no points, longer than this many radii: ``check``; longer than the
 #: second, ``poor`` (the spine there is an interpolation).
 CHECK_GAP_RADII, POOR_GAP_RADII = 1.0, 3.0
@@ -131,7 +136,7 @@ def support_gap(t: np.ndarray, length: float, closed: bool) -> float:
 
 
 def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, gap: float,
-                   out_of_round: float) -> tuple[str, list]:
+                   out_of_round: float, stretches: np.ndarray = np.empty(0)) -> tuple[str, list]:
     """Quality of one branch and its reasons.
 
     Parameters
@@ -144,6 +149,8 @@ def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, 
         The scan's own noise (same units).
     coverage : float
         Median degrees of the circumference its points cover (NaN when too few points tell).
+    stretches : ndarray
+        The degrees covered around each stretch of its spine (:func:`canalsurf.metrics.angular_coverage`).
     gap : float
         :func:`support_gap` of its points.
     out_of_round : float
@@ -168,6 +175,9 @@ def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, 
         found.append(("poor", f"seen from one side only ({coverage:.0f} degrees of the circumference)"))
     elif coverage < ONE_SIDED_DEGREES:
         found.append(("check", f"seen from one side ({coverage:.0f} degrees of the circumference)"))
+    narrow = np.mean(stretches < POOR_COVERAGE_DEGREES) if len(stretches) else 0.0
+    if coverage >= POOR_COVERAGE_DEGREES and narrow >= POOR_COVERAGE_SHARE:
+        found.append(("poor", f"seen over less than {POOR_COVERAGE_DEGREES:.0f} degrees along {narrow:.0%} of it"))
     if gap > POOR_GAP_RADII * radius:
         found.append(("poor", f"a gap of {gap / radius:.1f} radii with no points along the spine"))
     elif gap > CHECK_GAP_RADII * radius:
