@@ -806,7 +806,24 @@ class _Estimates:
         return self._made[i]
 
 
-def _assign(points: np.ndarray, estimates: _Estimates, curved: np.ndarray, i: int) -> np.ndarray:
+class _Fittable:
+    """The points a fit may take (``curved``), in order along the cloud's longest axis: those in a box are
+    then found by two binary searches and a test of the box's slab, not of every point of a scene."""
+
+    def __init__(self, points: np.ndarray, curved: np.ndarray):
+        self.axis = int(np.argmax(np.ptp(points, axis=0))) if len(points) else 0
+        index = np.flatnonzero(curved)
+        self.order = index[np.argsort(points[index, self.axis], kind="stable")]
+        self.key = points[self.order, self.axis]
+
+    def in_box(self, points: np.ndarray, box: np.ndarray) -> np.ndarray:
+        """Ascending indices of the fittable ``points`` inside ``box`` (corners, shape (2, 3))."""
+        slab = self.order[np.searchsorted(self.key, box[0, self.axis], side="left"):
+                          np.searchsorted(self.key, box[1, self.axis], side="right")]
+        return np.sort(slab[np.all((points[slab] >= box[0]) & (points[slab] <= box[1]), axis=1)])
+
+
+def _assign(points: np.ndarray, estimates: _Estimates, fittable: _Fittable, i: int) -> np.ndarray:
     """Indices of the points branch ``i`` is fitted to.
 
     A point goes to the branch whose first tube estimate -- continued straight for
@@ -814,7 +831,7 @@ def _assign(points: np.ndarray, estimates: _Estimates, curved: np.ndarray, i: in
     nearest, if within ``ASSIGN_RADII`` of that branch's radii; points near a junction go to none
     (their surface belongs to several tubes).  Clutter (a floor under a pipe, a box beside it) is
     then no part of any fit, however much of the scan it is; nor is a point where the surface is
-    flat (``curved`` False): ground beside a pipe that lies near it would otherwise pull a one-sided
+    flat (not ``fittable``): ground beside a pipe that lies near it would otherwise pull a one-sided
     fit towards a larger radius.  Only the points in the box of the branch's band, and the branches
     whose bands reach into it, are looked at, so that the cost does not grow with the size of the scene.
     """
@@ -822,10 +839,10 @@ def _assign(points: np.ndarray, estimates: _Estimates, curved: np.ndarray, i: in
     mine = estimates.model(i)[1]
     boxes = np.array([estimates.model(j)[1] for j in range(len(guesses))])
     index = np.flatnonzero(np.all((boxes[:, 0] <= mine[1]) & (boxes[:, 1] >= mine[0]), axis=1))
-    near = np.flatnonzero(np.all((points >= mine[0]) & (points <= mine[1]), axis=1))
+    near = fittable.in_box(points, mine)
     label, _ = classify_points(points[near], [estimates.model(j)[0] for j in index],
                                cut=[ASSIGN_RADII * guesses[j]["eq6"] for j in index], far=False)
-    keep = curved[near] & (label == i)
+    keep = label == i
     if len(junctions) and keep.any():
         for hits in cKDTree(points[near]).query_ball_point(junctions, estimates.junction_reach):
             keep[hits] = False
@@ -965,7 +982,7 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
 
 
 def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimates: _Estimates,
-          curved: np.ndarray, kind: str) -> tuple[_BranchFit, np.ndarray]:
+          fittable: _Fittable, kind: str) -> tuple[_BranchFit, np.ndarray]:
     """Branch ``i``'s fit and the indices of its points (``idx``), grown where an open end grew towards
     the edge of its points: the points are assigned again about the fit (continued ASSIGN_END_RADII past
     its ends, like the first estimate) and the branch fitted again, until no end grows by more than
@@ -981,7 +998,7 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
         length, grown = curve_length(g["spine"]), curve_length(fit.spine)
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
         estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
-        idx = _assign(points, estimates, curved, i)
+        idx = _assign(points, estimates, fittable, i)
         fit = _fit_branch(points[idx], estimates.guesses[i], kind=kind, refine=True)
     return fit, idx
 
@@ -1108,13 +1125,13 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
     ``job`` holds what every branch's fit shares (see :func:`_fit_network`).
     """
     points, estimates = job["points"], job["estimates"]
-    idx = _assign(points, estimates, job["curved"], i)
+    idx = _assign(points, estimates, job["fittable"], i)
     if len(idx) < C.POINTS_PER_SEGMENT:
         return f"only {len(idx)} points lie near the first estimate of a tube"
     try:
         fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=job["refine"])
         if job["refine"]:
-            fit, idx = _grow(points, fit, idx, i, estimates, job["curved"], job["kind"])
+            fit, idx = _grow(points, fit, idx, i, estimates, job["fittable"], job["kind"])
             ends = estimates.skel.branches[i].ends
             tail = _stray_tail(fit, estimates.guesses[i], ends) | _hooked_end(fit, ends) | _sparse_end(fit, ends)
             if tail.any():
@@ -1324,9 +1341,10 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     principal curvature (a tube's points curve with its radius); ``client``, Dask's, fits there.
     """
     fits = [None] * len(skel.branches)
+    fittable = _Fittable(points, curved)
     for _ in range(MAX_FIT_ROUNDS):
         estimates = _Estimates([_first_guess(b) for b in skel.branches], skel)
-        job = {"points": points, "estimates": estimates, "curved": curved, "kappa": kappa, "kind": kind,
+        job = {"points": points, "estimates": estimates, "fittable": fittable, "kappa": kappa, "kind": kind,
                "refine": refine, "noise": noise, "quantum": quantum}
         todo = [i for i, f in enumerate(fits) if f is None]
         reason = ""

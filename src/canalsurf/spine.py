@@ -57,9 +57,25 @@ def local_basis(u: np.ndarray, n_segments: int, closed: bool) -> tuple[np.ndarra
     u = np.clip(np.asarray(u, float), 0.0, 1.0)
     if closed:
         u = np.where(u >= 1.0, 0.0, u)
-    B = BSpline.design_matrix(u, knots(n_segments, closed), DEGREE)
-    columns = B.indices.reshape(-1, DEGREE + 1)
-    return B.data.reshape(-1, DEGREE + 1), columns % n_segments if closed else columns
+    # Cox-de Boor on the knot span each u falls in (The NURBS Book, A2.2), vectorised: on uniform knots
+    # the span follows from u itself, and building scipy's sparse design matrix costs several times more.
+    t = knots(n_segments, closed)
+    mu = np.minimum((u * n_segments).astype(np.intp), n_segments - 1) + DEGREE
+    # The knots are rounded: a u next to one may fall on its other side.
+    mu += (u >= t[mu + 1]) & (mu < n_segments + DEGREE - 1)
+    mu -= (u < t[mu]) & (mu > DEGREE)
+    left = [u - t[mu + 1 - j] for j in range(DEGREE + 1)]
+    right = [t[mu + j] - u for j in range(DEGREE + 1)]
+    values = [np.ones_like(u)]
+    for j in range(1, DEGREE + 1):
+        saved = np.zeros_like(u)
+        for r in range(j):
+            share = values[r] / (right[r + 1] + left[j - r])
+            values[r] = saved + right[r + 1] * share
+            saved = left[j - r] * share
+        values.append(saved)
+    columns = (mu - DEGREE)[:, None] + np.arange(DEGREE + 1)
+    return np.column_stack(values), columns % n_segments if closed else columns
 
 
 def design_matrix(u: np.ndarray, n_segments: int, closed: bool) -> sparse.csr_matrix:
