@@ -174,13 +174,14 @@ def on_planes(points: np.ndarray, normals: np.ndarray, flat: np.ndarray, toleran
     """
     rng = np.random.default_rng(0)
     left = np.asarray(flat)
-    found = []
+    found = np.zeros(len(points), bool)
     cos_min = np.cos(np.radians(PLANE_NORMAL_DEGREES))
     for _ in range(MAX_PLANES):
         need = max(MIN_PLANE_POINTS, MIN_PLANE_SHARE * len(flat))
         if len(left) < need or not tolerance > 0:
             break
         best, best_count = None, 0
+        candidates = points[left]
         for _ in range(PLANE_TRIALS):
             a, b, c = points[rng.choice(left, 3, replace=False)]
             n = np.cross(b - a, c - a)
@@ -188,16 +189,15 @@ def on_planes(points: np.ndarray, normals: np.ndarray, flat: np.ndarray, toleran
             if norm == 0:
                 continue
             n /= norm
-            count = int((np.abs((points[left] - a) @ n) < tolerance).sum())
+            count = int((np.abs((candidates - a) @ n) < tolerance).sum())
             if count > best_count:
                 best, best_count = (a, n), count
         if best is None or best_count < need:
             break
         a, n = best
-        on = np.flatnonzero((np.abs((points - a) @ n) < tolerance) & (np.abs(normals @ n) > cos_min))
-        found.append(on)
-        left = np.setdiff1d(left, on)
-    return np.unique(np.concatenate(found)) if found else np.empty(0, int)
+        found |= (np.abs((points - a) @ n) < tolerance) & (np.abs(normals @ n) > cos_min)
+        left = left[~found[left]]
+    return np.flatnonzero(found)
 
 
 def surface_noise(points: np.ndarray, seeds: np.ndarray, *, k: int = NORMAL_NEIGHBOURS, rng=0) -> float:

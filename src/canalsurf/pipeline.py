@@ -558,8 +558,10 @@ def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0, widest: fl
         # reaches a tube and reads as curved.  The tubes' noise, not the floor's: a quantised floor is
         # exactly flat and would read as no noise.
         noise = max(_scan_noise(scan.pts, nbr[curved]), quantum)
-        curved = np.setdiff1d(curved, on_planes(scan.pts, nrm, np.setdiff1d(np.arange(len(scan.pts)), curved),
-                                                C.PLANE_TOLERANCE_NOISES * noise))
+        flat = np.ones(len(scan.pts), bool)
+        flat[curved] = False
+        flat[on_planes(scan.pts, nrm, np.flatnonzero(flat), C.PLANE_TOLERANCE_NOISES * noise)] = True
+        curved = curved[~flat[curved]]
     return scan, nrm, r0, area_per_point, curved, kappa
 
 
