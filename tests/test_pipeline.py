@@ -453,7 +453,7 @@ def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
 def test_a_stray_thin_point_at_an_open_end_does_not_stop_the_fit_short():
     """A pipe of radius 1 over x in [0, 20] whose skeleton branch ends in one stray thin point with r_i 3.5:
     the first estimate's radius holds near 1 to the end and the fit reaches it; a cone's radii, which
-    change steadily, are the estimate's as they are, as are those at a junction's end."""
+    change steadily, are the estimate's as they are; at a junction's end the outlier goes as well."""
     from canalsurf.pipeline import _first_guess, _fit_network
     from canalsurf.skeleton import Skeleton, SkeletonBranch
 
@@ -472,9 +472,50 @@ def test_a_stray_thin_point_at_an_open_end_does_not_stop_the_fit_short():
     assert np.sort(fit.spine(np.array([0.0, 1.0]))[:, 0])[1] > 19.7
     cone = SkeletonBranch(branch.points, weights, np.linspace(1.0, 0.5, len(branch.points)), (None, None))
     np.testing.assert_array_equal(_first_guess(cone)["r_v"], cone.radius)
-    # at a junction's end the r_i change fast (the tubes unite there): kept
     joined = SkeletonBranch(branch.points, weights, radius, (None, 0))
-    np.testing.assert_array_equal(_first_guess(joined)["r_v"], radius)
+    np.testing.assert_array_equal(_first_guess(joined)["r_v"], np.ones(len(radius)))
+
+
+def test_a_side_branch_whose_radii_spike_at_its_junction_is_fitted_up_to_it():
+    """A tee's side (radius 0.5 along y, off a run of radius 0.8 along x) whose skeleton branch, as one was
+    recorded from a plant scan, has r_i 0.3, 1.7 and 0.75 at its last vertices: its estimate's radius
+    stays below twice 0.5 to the junction, and the fit reaches the zone round the junction that no branch takes
+    (1.5 run radii).  With the spike kept the estimate widened to 3.2 there, the points beside the
+    junction were inside it, and the fit stopped at y 2.4."""
+    from canalsurf.pipeline import JUNCTION_EXCLUSION_RADII, _fit_network, _first_guess
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    y = np.array([4.73, 4.53, 4.41, 4.29, 4.27, 3.95, 3.67, 3.61, 3.34, 3.03, 2.69, 2.42, 2.33, 2.2, 2.17, 1.87,
+                  1.62, 1.59, 1.31, 0.68, 0.45])
+    z = np.array([3, 2, -3, 0, -4, -1, -2, -1, -1, 0, 1, 0, -2, 0, -2, 1, -1, -3, 15, -31, -16]) / 100
+    r = np.r_[0.52, 0.51, 0.48, 0.49, 0.46, 0.49, 0.48, 0.49, 0.49, 0.48, 0.5, 0.49, 0.48, 0.49, 0.48, 0.49, 0.5,
+              0.48, 0.3, 1.7, 0.75]
+    w = np.r_[4, 9, 2, 7, 4, 15, 1, 8, 8, 13, 8, 19, 1, 5, 3, 15, 4, 5, 4, 4, 0].astype(float)
+    side = SkeletonBranch(np.c_[np.zeros_like(y), y, z], w, r, (None, 0))
+    assert float(_first_guess(side)["radius"](np.linspace(0.0, 1.0, 50)).max()) < 2 * 0.5
+
+    rng = np.random.default_rng(5)
+    run = _pipe_points(0.8, -10.0, 10.0, 3000, rng)
+    run = run[~((np.hypot(run[:, 0], run[:, 2]) < 0.5) & (run[:, 1] > 0))]
+    along = _pipe_points(0.5, 0.0, 5.0, 600, rng)
+    stub = along[:, [1, 0, 2]]  # along y
+    stub = stub[np.hypot(stub[:, 1], stub[:, 2]) > 0.8]
+    points = np.concatenate([run, stub])
+    junction = side.points[-1]
+
+    def line(a, b, ends):
+        k = int(np.linalg.norm(np.subtract(b, a)) / 0.25) + 1
+        return SkeletonBranch(np.linspace(a, b, k), np.full(k, 8.0), np.full(k, 0.8), ends)
+
+    skel = Skeleton([line((-10, 0, 0), junction, (None, 0)), line(junction, (10, 0, 0), (0, None)), side],
+                    junction[None], 0.1)
+    n = len(points)
+    _, fits = _fit_network(points, skel, kind="auto", refine=True, noise=0.01, quantum=0.0,
+                           curved=np.ones(n, bool), kappa=np.ones(n))
+    ends = fits[2].spine(np.array([0.0, 1.0]))
+    assert abs(float(fits[2].radius(0.5)) - 0.5) < 0.01
+    assert ends[:, 1].max() > 4.9
+    assert ends[:, 1].min() < junction[1] + JUNCTION_EXCLUSION_RADII * 0.8 + 0.1
 
 
 def _axis_branch(x0: float, x1: float):

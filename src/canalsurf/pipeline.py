@@ -687,25 +687,27 @@ def _thin(shrunk, H):
 # fit each branch
 
 
-#: Of the R_I_WINDOW skeleton vertices at an open end, one whose r_i exceeds their median by more than
+#: Of the R_I_WINDOW skeleton vertices at an end, one whose r_i exceeds their median by more than
 #: R_I_OUTLIER times takes that median in the first estimate's radius function: a stray thin point at
-#: an open end (r_i 3.5 on a pipe of radius 1) would swing the radius spline there, its continuation
-#: past the end would grow faster than its length, and the scan's points beside the end would be
-#: nearest to no estimate: the fit stops short.  The vertices lie about half a radius apart; no tube's
-#: radius doubles within two radii.
+#: an open end (r_i 3.5 on a pipe of radius 1), or one at a junction that took in the other tubes' points
+#: (r_i 1.7 on a tee's side of radius 0.5), swings the radius spline there to several times the tube's.
+#: Past an open end the continuation then grows faster than its length; at a junction the widened end
+#: takes in the points beside it as inside it.  Either way the scan's points there are nearest to no
+#: estimate and the fit stops short.  The vertices lie about half a radius apart; no tube's radius
+#: doubles within two radii.
 R_I_OUTLIER = 2.0
 R_I_WINDOW = 5
 
 
-def _steady(r: np.ndarray, ends: tuple) -> np.ndarray:
-    """The radii ``r`` of a branch's vertices with the outliers at its open ``ends`` (R_I_OUTLIER) replaced.
+def _steady(r: np.ndarray) -> np.ndarray:
+    """The radii ``r`` of an open branch's vertices with the outliers at its ends (R_I_OUTLIER) replaced.
 
-    At a junction the r_i change fast (the tubes unite), and a small r_i at an end (its cap) swings the
-    estimate's radius no wider: those are kept.
+    A small r_i at an end (a cap, or where a thinner tube joins) swings the estimate's radius no wider:
+    those are kept.
     """
     r = r.copy()
-    for end, window in ((0, slice(0, R_I_WINDOW)), (1, slice(-R_I_WINDOW, None))):
-        if ends[end] is None and len(r) >= R_I_WINDOW:
+    if len(r) >= R_I_WINDOW:
+        for window in (slice(0, R_I_WINDOW), slice(-R_I_WINDOW, None)):
             median = np.median(r[window])
             r[window] = np.where(r[window] > R_I_OUTLIER * median, median, r[window])
     return r
@@ -719,7 +721,7 @@ def _first_guess(branch: SkeletonBranch) -> dict:
     w = branch.weights
     n_thin = int(w.sum())
     r_b = float(np.average(branch.radius, weights=w))  # Eq. (6) over the branch's points
-    r_v = branch.radius if branch.closed else _steady(branch.radius, branch.ends)
+    r_v = branch.radius if branch.closed else _steady(branch.radius)
     # A loop's periodic splines need more segments than their degree.
     least = 4 if branch.closed else 1
     nseg = max(least, _segments(length, C.SPINE_KNOTS_PER_RADIUS * r_b, n_thin))
