@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from .constants import NORMAL_NEIGHBOURS, ORIENT_LINK_REACH, ORIENT_NEIGHBOURS
 
-__all__ = ["estimate_normals", "orient_normals", "point_inward", "on_planes", "surface_noise"]
+__all__ = ["estimate_normals", "orient_normals", "point_inward", "on_planes", "scatter_matrices", "surface_noise"]
 
 #: Coefficients of the local quadric of :func:`surface_noise`: h = a x^2 + b xy + c y^2 + d x + e y + f.
 _QUADRIC_TERMS = 6
@@ -28,11 +28,27 @@ NOISE_PER_REACH = 0.1
 NOISE_MIN_POINTS = 2_000
 
 
-def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
+def scatter_matrices(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Scatter matrix of each neighbourhood about its centroid: ``sum (p - m)(p - m)^T`` over ``points[idx[i]]``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+    idx : ndarray of int, shape (M, k)
+        The neighbours of each of M points.
+
+    Returns
+    -------
+    ndarray, shape (M, 3, 3)
+    """
+    # Batched matrix products: numpy's einsum takes several times as long over this many small matrices.
     nbr = points[idx]  # (N, k, 3)
     centred = nbr - nbr.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", centred, centred)
-    _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues: column 0 is the plane normal
+    return np.swapaxes(centred, 1, 2) @ centred
+
+
+def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    _, vecs = np.linalg.eigh(scatter_matrices(points, idx))  # ascending eigenvalues: column 0 is the plane normal
     return vecs[:, :, 0]
 
 

@@ -26,7 +26,7 @@ from .errors import InputError, ReconstructionError
 from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
-from .normals import estimate_normals, on_planes, point_inward, surface_noise
+from .normals import estimate_normals, on_planes, point_inward, scatter_matrices, surface_noise
 from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
@@ -580,9 +580,7 @@ def _scan_noise(points: np.ndarray, nbr: np.ndarray) -> float:
     the tubes' curvature, so it is not the noise a fit is judged against (:func:`_noise`)."""
     if not len(nbr):
         return 0.0
-    patch = points[nbr]
-    centred = patch - patch.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", centred, centred) / patch.shape[1]
+    cov = scatter_matrices(points, nbr) / nbr.shape[1]
     return float(np.sqrt(max(np.median(np.linalg.eigvalsh(cov)[:, 0]), 0.0)))
 
 
@@ -1007,6 +1005,8 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     return fit, idx
 
 
+#: Spine samples (by arc length) of the tests on a fit's ends below.
+END_SAMPLES = 600
 #: Past a gap in its points longer than POOR_GAP_RADII radii, the part of a branch towards an open end
 #: that holds less than this share of its points is not the same tube: strays (clutter, another tube's
 #: end) its end grew to across the gap.  The branch is fitted again without them.
@@ -1035,7 +1035,7 @@ def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
     before = (widest + 1) / len(inlier)  # share of the inliers before the gap
     sides = ((fit.t <= inlier[widest], (0.0, inlier[widest]), before),
              (fit.t >= inlier[widest + 1], (inlier[widest + 1], 1.0), 1 - before))
-    t, pts = sample_arclength(fit.spine, HOOK_SAMPLES)
+    t, pts = sample_arclength(fit.spine, END_SAMPLES)
     reach = t[np.argmin(np.linalg.norm(pts[:, None] - guess["spine"](np.array([0.0, 1.0])), axis=2), axis=0)]
     grown = (reach[0] > inlier[widest], reach[1] < inlier[widest + 1])  # the estimate never crossed the gap
     for end in (0, 1):
@@ -1053,8 +1053,6 @@ def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
 #: radius above 1: the surface would pass through itself) has turned to another tube's points -- a pipe's
 #: end among its neighbours' ends in a rack -- where no elbow bends so tightly.
 HOOK_RADII = 4.0
-#: Spine samples of that test.
-HOOK_SAMPLES = 600
 
 
 def _hooked_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
@@ -1063,7 +1061,7 @@ def _hooked_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
     tail = np.zeros(len(fit.t), bool)
     if fit.closed:
         return tail
-    t, pts = sample_arclength(fit.spine, HOOK_SAMPLES)
+    t, pts = sample_arclength(fit.spine, END_SAMPLES)
     r = fit.radius(t)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
     tight = curvature(fit.spine, t) * r > 1.0

@@ -49,11 +49,12 @@ def principal_curvature(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(normals, e1)
     basis = np.stack([e1, e2], axis=2)  # (N, 3, 2)
-    a = np.einsum("nki,nij->nkj", dp, basis)
-    b = np.einsum("nki,nij->nkj", dn, basis)
+    # Batched matrix products: numpy's einsum takes several times as long over this many small matrices.
+    a = dp @ basis
+    b = dn @ basis
     # Shape operator W with dn = W dp in the tangent plane: least squares, then symmetrised.
-    ata = np.einsum("nki,nkj->nij", a, a) + 1e-12 * np.eye(2)
-    atb = np.einsum("nki,nkj->nij", a, b)
+    ata = np.swapaxes(a, 1, 2) @ a + 1e-12 * np.eye(2)
+    atb = np.swapaxes(a, 1, 2) @ b
     W = np.linalg.solve(ata, atb)
     W = 0.5 * (W + np.swapaxes(W, 1, 2))
     return np.linalg.eigvalsh(W)[:, -1]
