@@ -484,6 +484,24 @@ def test_no_caches_in_the_home_folder(cloud, tmp_path):
     assert not any(Path(env["TMPDIR"]).iterdir())  # and the temporary cache folder is gone
 
 
+def test_ezdxf_reads_no_font_files_in_the_private_cache(tmp_path):
+    # ezdxf scans the system's fonts when its font list is absent or of a version it does not read,
+    # and then rewrites the list; the empty list written for it must be read as it is.
+    pytest.importorskip("ezdxf")
+    env = _child_env(tmp_path)
+    env.pop("XDG_CACHE_HOME", None)
+    code = ("import os\n"
+            "from canalsurf import _interrupt\n"
+            "with _interrupt.private_caches():\n"
+            "    import ezdxf\n"
+            "    path = os.path.join(os.environ['XDG_CACHE_HOME'], _interrupt.EZDXF_FONT_CACHE[0])\n"
+            "    print(open(path).read() == _interrupt.EZDXF_FONT_CACHE[1])\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                          timeout=SUBPROCESS_TIMEOUT)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "True"
+
+
 # --- 8. numbers that pass a range check but not the arithmetic --------------------------------------
 
 #: Option values that are refused before any work: each names its option in the one error line.

@@ -41,6 +41,10 @@ INTERRUPTED = "interrupted — nothing more was written"
 #: The signals handled, each ending the process with 128 + its number (the shells' convention).
 SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
 
+#: Where ezdxf keeps its font list under ``XDG_CACHE_HOME``, and an empty one in its format (version
+#: 2 of ``ezdxf.fonts.font_manager``; a list of another version is rebuilt by ezdxf, as if absent).
+EZDXF_FONT_CACHE = (os.path.join("ezdxf", "font_manager_cache.json"), '{"version": 2, "font-faces": []}')
+
 _callbacks: list[Callable[[], None]] = []
 _depth = 0  # nesting of deferred() blocks
 _pending: int | None = None  # a signal that arrived inside a deferred() block
@@ -126,9 +130,12 @@ def private_caches() -> Iterator[None]:
     and ezdxf (spine.dxf) builds ``~/.cache/ezdxf`` when first imported, unless told otherwise; a
     command should not leave files in the user's home.  ``MPLCONFIGDIR`` and ``XDG_CACHE_HOME`` are
     pointed into a temporary folder when they are not set (a value the user set is respected), and
-    the folder is removed afterwards.  The price is that each run with a report or spine.dxf rebuilds
-    those font lists (a fraction of a second on most systems).  Must be entered before matplotlib or
-    ezdxf are imported.
+    the folder is removed afterwards.  Must be entered before matplotlib or ezdxf are imported.
+
+    ezdxf would fill its empty cache by reading every font file of the system at import, about a
+    millisecond each (seconds on a desktop with thousands of fonts), for text that spine.dxf never
+    holds; the private cache starts with an empty font list instead (:data:`EZDXF_FONT_CACHE`).
+    matplotlib still rebuilds its font list for each report.
     """
     names = [name for name in ("MPLCONFIGDIR", "XDG_CACHE_HOME") if not os.environ.get(name)]
     if not names:
@@ -142,4 +149,11 @@ def private_caches() -> Iterator[None]:
         for name in names:
             stack.callback(os.environ.pop, name, None)
             os.environ[name] = os.path.join(folder, "matplotlib" if name == "MPLCONFIGDIR" else "cache")
+        if "XDG_CACHE_HOME" in names:
+            path, text = EZDXF_FONT_CACHE
+            path = os.path.join(os.environ["XDG_CACHE_HOME"], path)
+            with contextlib.suppress(OSError):  # then ezdxf reads the fonts, as without this
+                os.makedirs(os.path.dirname(path))
+                with open(path, "w", encoding="utf-8") as file:
+                    file.write(text)
         yield
