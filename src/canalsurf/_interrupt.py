@@ -132,9 +132,9 @@ def private_caches() -> Iterator[None]:
     pointed into a temporary folder when they are not set (a value the user set is respected), and
     the folder is removed afterwards.  Must be entered before matplotlib or ezdxf are imported.
 
-    ezdxf would fill its empty cache by reading every font file of the system at import, about a
-    millisecond each (seconds on a desktop with thousands of fonts), for text that spine.dxf never
-    holds; the private cache starts with an empty font list instead (:data:`EZDXF_FONT_CACHE`).
+    ezdxf would fill its empty cache by reading every font file of the system at import, on every
+    run and the longer the more fonts are installed, for text that spine.dxf never holds; the private
+    cache starts with an empty font list instead (:data:`EZDXF_FONT_CACHE`).
     matplotlib still rebuilds its font list for each report.
     """
     names = [name for name in ("MPLCONFIGDIR", "XDG_CACHE_HOME") if not os.environ.get(name)]
