@@ -1108,6 +1108,8 @@ def _other_tube(fit: _BranchFit, guess: dict, side: tuple, rest: tuple) -> bool:
     (MAX_GAP_RADIUS_CHANGE), or one fits no pipe."""
     radii = []
     for mine, (a, b), _ in (side, rest):
+        if not b > a:  # points that all lie past the spine's end: no stretch of it to fit a pipe along
+            return True
         nseg, rseg = (max(1, int(round(n * (b - a)))) for n in guess["segments"])
         spine, _, _ = arclength_reparametrize(fit.spine, n_segments=nseg, closed=False, a=a, b=b)
         radius = constant_spline(float(np.mean(fit.radius(np.linspace(a, b, 50)))))
