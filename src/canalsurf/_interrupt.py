@@ -150,8 +150,8 @@ def private_caches() -> Iterator[None]:
             stack.callback(os.environ.pop, name, None)
             os.environ[name] = os.path.join(folder, "matplotlib" if name == "MPLCONFIGDIR" else "cache")
         if "XDG_CACHE_HOME" in names:
-            path, text = EZDXF_FONT_CACHE
-            path = os.path.join(os.environ["XDG_CACHE_HOME"], path)
+            name, text = EZDXF_FONT_CACHE
+            path = os.path.join(os.environ["XDG_CACHE_HOME"], name)
             with contextlib.suppress(OSError):  # then ezdxf reads the fonts, as without this
                 os.makedirs(os.path.dirname(path))
                 with open(path, "w", encoding="utf-8") as file:
