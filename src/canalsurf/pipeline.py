@@ -861,7 +861,10 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
             fits["canal"] = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
                                        radius_segments=rseg, reach=eq6)
         if kind in ("auto", "pipe"):
-            start = fits["canal"].spine if "canal" in fits else spine
+            # The canal fit's spine is the better start, unless that fit ran off (its free radius
+            # function lets a bad step grow): then the pipe fit would go with it.
+            ran_off = "canal" in fits and not _near_radius(fits["canal"].radius, eq6)
+            start = fits["canal"].spine if "canal" in fits and not ran_off else spine
             fits["pipe"] = refine_fit(points, start, constant_spline(eq6), closed=closed,
                                       spine_segments=nseg, radius_segments=None, reach=eq6)
         if kind == "auto":
@@ -887,6 +890,17 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
         radius_fn = constant_spline(eq6)
     t, residual = footpoints(points, spine, radius_fn, closed=closed)
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
+
+
+#: A canal fit whose radius leaves [r_b / RUNAWAY_RADIUS, RUNAWAY_RADIUS r_b] anywhere has run off: the
+#: first estimate's Eq. (6) radius is within tens of per cent of a tube's, and a canal's taper about it.
+RUNAWAY_RADIUS = 3.0
+
+
+def _near_radius(radius: BSpline, eq6: float) -> bool:
+    """Whether a fitted radius function stays within RUNAWAY_RADIUS of the first estimate's ``eq6``."""
+    r = radius(np.linspace(0.0, 1.0, 200))
+    return bool(r.min() >= eq6 / RUNAWAY_RADIUS and r.max() <= RUNAWAY_RADIUS * eq6)
 
 
 def _runs_back(spine: BSpline, guess: BSpline, radius: float) -> bool:
