@@ -247,6 +247,36 @@ def test_what_lies_past_a_long_gap_at_an_open_end_is_cut_unless_it_is_the_same_t
     assert tail[5000:].mean() > 0.99 if cut else not tail.any()
 
 
+def test_a_canal_fit_that_ran_off_does_not_take_the_pipe_fit_with_it(monkeypatch):
+    """A canal fit whose radius ran off to several times the first estimate's (here 5 against 1.2, its
+    spine hooked 2 radii off the axis at one end) is no start for the pipe fit: started there, the pipe
+    fit kept the hook; started from the first estimate, it finds the pipe's axis."""
+    import canalsurf.pipeline as pipeline
+    from canalsurf.refine import RefineResult
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    refine = pipeline.refine_fit
+
+    def runaway_canal(points, spine, radius, *, radius_segments, **kwargs):
+        if radius_segments is None:
+            return refine(points, spine, radius, radius_segments=radius_segments, **kwargs)
+        u = np.linspace(0.0, 1.0, 50)
+        hooked = pspline_fit(u, np.c_[24 * u, 3 * np.clip(4 * (u - 0.5), 0, None) ** 2, np.zeros(50)],
+                             n_segments=6)
+        t, residual = pipeline.footpoints(points, hooked, constant_spline(5.0), closed=False)
+        return RefineResult(hooked, constant_spline(5.0), t, residual, np.ones(len(points), bool), 1)
+
+    monkeypatch.setattr(pipeline, "refine_fit", runaway_canal)
+    points = _pipe_points(1.2, 0, 24, 5000, np.random.default_rng(0))
+    u = np.linspace(0.0, 1.0, 50)
+    guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(1.2),
+             "eq6": 1.2, "segments": (6, 6), "closed": False}
+    fit = pipeline._fit_branch(points, guess, kind="auto", refine=True)
+    assert fit.kind == "pipe"
+    assert np.abs(fit.spine(np.linspace(0, 1, 100))[:, 1:]).max() < 0.01 * 1.2
+    assert abs(float(fit.radius(0.5)) - 1.2) < 0.01 * 1.2
+
+
 def test_points_that_all_lie_past_a_spines_end_are_another_tube():
     """A side of a fit's points whose footpoints all fall on the spine's end (t = 1: they lie past it)
     spans no stretch of the spine to fit a pipe along: it is another tube, and no fit is tried on an
