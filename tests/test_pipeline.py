@@ -247,33 +247,40 @@ def test_what_lies_past_a_long_gap_at_an_open_end_is_cut_unless_it_is_the_same_t
     assert tail[5000:].mean() > 0.99 if cut else not tail.any()
 
 
-def test_a_canal_fit_that_ran_off_does_not_take_the_pipe_fit_with_it(monkeypatch):
+@pytest.mark.parametrize("bad", ["ran off", "folded"])
+def test_a_canal_fit_that_went_wrong_does_not_take_the_pipe_fit_with_it(monkeypatch, bad):
     """A canal fit whose radius ran off to several times the first estimate's (here 5 against 1.2, its
-    spine hooked 2 radii off the axis at one end) is no start for the pipe fit: started there, the pipe
-    fit kept the hook; started from the first estimate, it finds the pipe's axis."""
+    spine hooked 2 radii off the axis at one end), or whose spine folded (its start slid from x = 0 to
+    17, and it runs back to 8 before going on to 24), is no start for the pipe fit: started there, the
+    pipe fit kept the hook or the fold; started from the first estimate, it finds the pipe's axis."""
     import canalsurf.pipeline as pipeline
     from canalsurf.refine import RefineResult
     from canalsurf.spine import constant_spline, pspline_fit
 
     refine = pipeline.refine_fit
 
-    def runaway_canal(points, spine, radius, *, radius_segments, **kwargs):
+    def wrong_canal(points, spine, radius, *, radius_segments, **kwargs):
         if radius_segments is None:
             return refine(points, spine, radius, radius_segments=radius_segments, **kwargs)
         u = np.linspace(0.0, 1.0, 50)
-        hooked = pspline_fit(u, np.c_[24 * u, 3 * np.clip(4 * (u - 0.5), 0, None) ** 2, np.zeros(50)],
-                             n_segments=6)
-        t, residual = pipeline.footpoints(points, hooked, constant_spline(5.0), closed=False)
-        return RefineResult(hooked, constant_spline(5.0), t, residual, np.ones(len(points), bool), 1)
+        if bad == "ran off":
+            axis, r = np.c_[24 * u, 3 * np.clip(4 * (u - 0.5), 0, None) ** 2, np.zeros(50)], 5.0
+        else:
+            axis, r = np.c_[np.where(u < 0.35, 17 - 9 / 0.35 * u, 8 + 16 / 0.65 * (u - 0.35)), np.zeros((50, 2))], 1.2
+        wrong = pspline_fit(u, axis, n_segments=6)
+        t, residual = pipeline.footpoints(points, wrong, constant_spline(r), closed=False)
+        return RefineResult(wrong, constant_spline(r), t, residual, np.ones(len(points), bool), 1)
 
-    monkeypatch.setattr(pipeline, "refine_fit", runaway_canal)
+    monkeypatch.setattr(pipeline, "refine_fit", wrong_canal)
     points = _pipe_points(1.2, 0, 24, 5000, np.random.default_rng(0))
     u = np.linspace(0.0, 1.0, 50)
     guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(1.2),
              "eq6": 1.2, "segments": (6, 6), "closed": False}
     fit = pipeline._fit_branch(points, guess, kind="auto", refine=True)
     assert fit.kind == "pipe"
-    assert np.abs(fit.spine(np.linspace(0, 1, 100))[:, 1:]).max() < 0.01 * 1.2
+    axis = fit.spine(np.linspace(0, 1, 100))
+    assert np.abs(axis[:, 1:]).max() < 0.01 * 1.2
+    assert np.all(np.diff(axis[:, 0]) > 0) and axis[0, 0] < 0.1 * 1.2 and axis[-1, 0] > 24 - 0.1 * 1.2
     assert abs(float(fit.radius(0.5)) - 1.2) < 0.01 * 1.2
 
 
