@@ -864,9 +864,10 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
             # The canal fit's spine is the better start, unless that fit ran off (its free radius
             # function lets a bad step grow) or folded (its end slid back along the tube, dragged by a
             # hook of the first estimate): then the pipe fit would go with it.
-            wrong = "canal" in fits and (not _near_radius(fits["canal"].radius, eq6)
-                                         or bool(fold(fits["canal"].spine, fits["canal"].radius, closed)))
-            start = fits["canal"].spine if "canal" in fits and not wrong else spine
+            canal = fits.get("canal")
+            sound = (canal is not None and _near_radius(canal.radius, eq6)
+                     and not fold(canal.spine, canal.radius, closed))
+            start = canal.spine if sound else spine
             fits["pipe"] = refine_fit(points, start, constant_spline(eq6), closed=closed,
                                       spine_segments=nseg, radius_segments=None, reach=eq6)
         if kind == "auto":
