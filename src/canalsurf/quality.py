@@ -107,17 +107,21 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     if tight > FOLD_BEND_SHARE:
         return (f"the spine bends more tightly than the tube's radius along {tight:.0%} of it (the surface "
                 "passes through itself)")
-    along = np.abs(s[:, None] - s[None])
+    # Only pairs of samples near each other in space can be close: a KD-tree finds them, where
+    # the dense matrix of all pairs cost tens of milliseconds on every fit.
+    from scipy.spatial import cKDTree
+
+    i, j = cKDTree(pts).query_pairs(2 * FOLD_CLEARANCE * r.max(), output_type="ndarray").T
+    along = np.abs(s[i] - s[j])
     if closed:
         along = np.minimum(along, length - along)
-    apart = np.linalg.norm(pts[:, None] - pts[None], axis=2)
-    rr = r[:, None] + r[None]
-    far = along > FOLD_ALONG_RADII * np.maximum(r[:, None], r[None])
-    close = far & (apart < FOLD_CLEARANCE * rr)
-    if close.any():
-        i, j = np.argwhere(close)[0]
-        return (f"the spine passes within {apart[i, j] / max(r[i], r[j]):.1f} radii of itself "
-                f"{along[i, j] / max(r[i], r[j]):.0f} radii further along it (a fold)")
+    apart = np.linalg.norm(pts[i] - pts[j], axis=1)
+    wider = np.maximum(r[i], r[j])
+    close = np.flatnonzero((along > FOLD_ALONG_RADII * wider) & (apart < FOLD_CLEARANCE * (r[i] + r[j])))
+    if len(close):
+        k = close[np.lexsort((j[close], i[close]))[0]]  # the first pair in order along the spine
+        return (f"the spine passes within {apart[k] / wider[k]:.1f} radii of itself "
+                f"{along[k] / wider[k]:.0f} radii further along it (a fold)")
     return ""
 
 
