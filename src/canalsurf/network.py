@@ -248,8 +248,10 @@ def classify_points(points: np.ndarray, branches: list, *, cut: list | None = No
     # whose distance from the box (no more than from any sample) leaves the branch a chance.
     limit = float(np.max(cuts))
     lost = np.flatnonzero(best > limit) if far else np.empty(0, np.intp)
-    index = cKDTree(points)
-    for i in range(len(branches)):
+    # With one branch every point has tried it already (and a tree of a large scan is costly).
+    others = range(len(branches)) if len(branches) > 1 else range(0)
+    index = cKDTree(points) if others else None
+    for i in others:
         low, high = samples[i].min(axis=0), samples[i].max(axis=0)
         ball = np.asarray(index.query_ball_point((low + high) / 2, np.linalg.norm(high - low) / 2 + reach[i] + limit),
                           dtype=np.intp)
