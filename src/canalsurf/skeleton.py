@@ -81,6 +81,14 @@ SIDE_GAP_RADII = 2.0
 #: its radius is linked to it, and is opened.  A real branch leaves a run at an angle, or overlaps it there.
 BRIDGE_WINDOW_RADII = (3.0, 8.0)
 BRIDGE_PARALLEL = 15.0
+#: The graph's nodes round a junction lie where the tubes' thin sets merge, often a radius or more
+#: along one of them from where their axes meet.  A junction is placed where the lines of its branches
+#: meet, each line fitted to the branch's vertices between JUNCTION_LINE_RADII (of the largest tube
+#: there) from the junction: past the merging, near enough for a bending branch to be nearly straight.
+#: It is left where it is when fewer than two branches reach that far, or when the lines meet farther
+#: than JUNCTION_MOVE_RADII from it (a tangle of the thin set, not a junction misplaced).
+JUNCTION_LINE_RADII = (1.5, 3.0)
+JUNCTION_MOVE_RADII = 2.0
 
 
 @dataclass
@@ -121,7 +129,8 @@ class Skeleton:
     ----------
     branches : list of SkeletonBranch
     junctions : ndarray, shape (J, 3)
-        Junction points (the mean of the graph nodes merged into each).
+        Junction points: where the lines of the branches meet (see JUNCTION_LINE_RADII), else the
+        mean of the graph nodes merged into each.
     link : float
         Median link length of the spanning forest (its sampling step).
     """
@@ -330,7 +339,55 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing) -> Skeleton:
         ends = (None, None) if loop else (None if ja is None else renumber[ja],
                                           None if jb is None else renumber[jb])
         branches += _cut_hairpins(SkeletonBranch(nodes[path], np.maximum(w, 0.0), r, ends, bool(loop)))
-    return _bridges_parted(_broken_tees_mended(Skeleton(branches, junctions, link)))
+    return _junctions_placed(_bridges_parted(_broken_tees_mended(Skeleton(branches, junctions, link))))
+
+
+def _junctions_placed(skeleton: Skeleton) -> Skeleton:
+    """The skeleton with each junction moved to where the lines of its branches meet (least squares;
+    see JUNCTION_LINE_RADII), and the branches run from it: a branch's vertices nearer its moved end
+    than the lines' stretch are spread evenly on the straight line from the junction point to the first
+    vertex beyond (on a branch shorter than that, to its last), keeping their thin points and radii."""
+    branches, junctions = list(skeleton.branches), skeleton.junctions.copy()
+    eq6 = [float(np.average(b.radius, weights=b.weights)) if b.weights.sum() > 0 else float(np.mean(b.radius))
+           for b in branches]
+    for j in range(len(junctions)):
+        ends = [(i, e) for i, b in enumerate(branches) for e in (0, 1) if not b.closed and b.ends[e] == j]
+        if len(ends) < 2:
+            continue
+        largest = max(eq6[i] for i, _ in ends)
+        near, far = np.multiply(JUNCTION_LINE_RADII, largest)
+        A, rhs, lines = np.zeros((3, 3)), np.zeros(3), 0
+        for i, e in ends:
+            pts = branches[i].points if e == 0 else branches[i].points[::-1]
+            s = _from_start(pts)
+            window = pts[(s >= near) & (s <= far)]
+            if len(window) < 3:
+                continue
+            centre = window.mean(axis=0)
+            d = np.linalg.svd(window - centre, full_matrices=False)[2][0]
+            P = np.eye(3) - np.outer(d, d)
+            A, rhs, lines = A + P, rhs + P @ centre, lines + 1
+        if lines < 2:
+            continue
+        # A light pull to the graph's junction fixes the point along lines that are parallel (a tee's run).
+        pull = 1e-3 * lines
+        point = np.linalg.solve(A + pull * np.eye(3), rhs + pull * junctions[j])
+        if np.linalg.norm(point - junctions[j]) > JUNCTION_MOVE_RADII * largest:
+            continue
+        junctions[j] = point
+        for i, e in ends:
+            b = branches[i] if e == 0 else _reversed(branches[i])
+            m = max(1, min(int(np.sum(_from_start(b.points) < near)), len(b.points) - 1))
+            pts = b.points.copy()
+            pts[:m] = point + np.outer(np.arange(m) / m, pts[m] - point)
+            b = SkeletonBranch(pts, b.weights, b.radius, b.ends, b.closed)
+            branches[i] = b if e == 0 else _reversed(b)
+    return Skeleton(branches, junctions, skeleton.link)
+
+
+def _from_start(pts: np.ndarray) -> np.ndarray:
+    """Arc length along a polyline from its first vertex."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
 
 
 def _broken_tees_mended(skeleton: Skeleton) -> Skeleton:
@@ -389,7 +446,7 @@ def _window(b: SkeletonBranch, end: int, radius: float) -> np.ndarray | None:
     """The branch's vertices between BRIDGE_WINDOW_RADII ``radius`` from its end ``end``, in order away
     from it; ``None`` if it does not reach twice the first."""
     pts = b.points if end == 0 else b.points[::-1]
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = _from_start(pts)
     near, far = np.multiply(BRIDGE_WINDOW_RADII, radius)
     inside = (s >= near) & (s <= far)
     return pts[inside] if s[-1] >= 2 * near and inside.sum() >= 2 else None
