@@ -81,8 +81,8 @@ SIDE_GAP_RADII = 2.0
 #: its radius is linked to it, and is opened.  A real branch leaves a run at an angle, or overlaps it there.
 BRIDGE_WINDOW_RADII = (3.0, 8.0)
 BRIDGE_PARALLEL = 15.0
-#: The graph's nodes round a junction lie where the tubes' thin sets merge, often a radius or more
-#: along one of them from where their axes meet.  A junction is placed where the lines of its branches
+#: The graph's nodes round a junction lie where the tubes' thin sets merge, not where their axes meet,
+#: and the points the fits leave out round a junction are measured from it.  A junction is placed where the lines of its branches
 #: meet, each line fitted to the branch's vertices between JUNCTION_LINE_RADII (of the largest tube
 #: there) from the junction: past the merging, near enough for a bending branch to be nearly straight.
 #: It is left where it is when fewer than two branches reach that far, or when the lines meet farther
