@@ -736,21 +736,24 @@ def test_two_runs_side_by_side_at_one_false_junction_are_two_branches():
 
 def test_a_junction_is_moved_to_where_its_branches_lines_meet():
     """A tee whose thin sets merged off its axes: the graph put the junction 0.3 from where the three
-    lines meet, and each branch bends to it over its last 0.3.  The junction moves to the lines' meeting
-    point, each branch runs straight from it, and no vertex, thin point or radius is lost."""
+    lines meet, and each branch bends to it over its last 0.3, where its r_i took in the other tubes'
+    points (1.5 against 0.5).  The junction moves to the lines' meeting point, each branch runs straight
+    from it with the radius of its first vertex past the merging, and no vertex or thin point is lost."""
     from canalsurf.skeleton import _junctions_placed
 
     graph = (0.2, 0.25, 0.0)
     branches = [_polyline((-6.0, 0.0, 0.0), (-0.3, 0.0, 0.0), graph, radius=0.5, ends=(None, 0)),
                 _polyline(graph, (0.3, 0.0, 0.0), (6.0, 0.0, 0.0), radius=0.5, ends=(0, None)),
                 _polyline(graph, (0.0, 0.3, 0.0), (0.0, 6.0, 0.0), radius=0.5, ends=(0, None))]
+    for b in branches:
+        b.radius[np.linalg.norm(b.points - graph, axis=1) < 0.5] = 1.5
     out = _junctions_placed(Skeleton(branches, np.array([graph]), 0.1))
     point = out.junctions[0]
     assert np.linalg.norm(point) <= 0.01
     for old, new, axis in zip(branches, out.branches, (0, 0, 1)):
         assert new.ends == old.ends and len(new.points) == len(old.points)
         np.testing.assert_array_equal(new.weights, old.weights)
-        np.testing.assert_array_equal(new.radius, old.radius)
+        np.testing.assert_array_equal(new.radius, 0.5)
         end = new.points[-1] if old.ends[1] == 0 else new.points[0]
         np.testing.assert_array_equal(end, point)
         off_axis = np.delete(new.points, axis, axis=1)

@@ -346,7 +346,8 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
     """The skeleton with each junction moved to where the lines of its branches meet (least squares;
     see JUNCTION_LINE_RADII), and the branches run from it: a branch's vertices nearer its moved end
     than the lines' stretch are spread evenly on the straight line from the junction point to the first
-    vertex beyond (on a branch shorter than that, to its last), keeping their thin points and radii."""
+    vertex beyond (on a branch shorter than that, to its last), keeping their thin points.  Their r_i
+    took in the other tubes' points where the thin sets merge: they take that vertex's r_i."""
     branches, junctions = list(skeleton.branches), skeleton.junctions.copy()
     eq6 = [float(np.average(b.radius, weights=b.weights)) if b.weights.sum() > 0 else float(np.mean(b.radius))
            for b in branches]
@@ -380,7 +381,9 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
             m = max(1, min(int(np.sum(_from_start(b.points) < near)), len(b.points) - 1))
             pts = b.points.copy()
             pts[:m] = point + np.outer(np.arange(m) / m, pts[m] - point)
-            b = SkeletonBranch(pts, b.weights, b.radius, b.ends, b.closed)
+            radius = b.radius.copy()
+            radius[:m] = radius[m]
+            b = SkeletonBranch(pts, b.weights, radius, b.ends, b.closed)
             branches[i] = b if e == 0 else _reversed(b)
     return Skeleton(branches, junctions, skeleton.link)
 
