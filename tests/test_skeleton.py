@@ -759,3 +759,20 @@ def test_a_junction_is_moved_to_where_its_branches_lines_meet():
         off_axis = np.delete(new.points, axis, axis=1)
         assert np.abs(off_axis).max() <= 0.01
         assert np.linalg.norm(np.diff(new.points, axis=0), axis=1).max() <= 0.2
+
+
+def test_a_link_between_two_pipes_side_by_side_moves_no_junction_along_them():
+    """A pipe (radius 0.5) whose thin set linked, bending, to a pipe beside it: the link, 1.7 long, is
+    shorter than the lines' stretch (up to 3 of its radii, 0.6), so it gives no line.  The junction
+    stays at its place along the pipe (only moved onto the pipe's axis), and the link is left as it
+    was; its line, where it runs past 1.5 radii, meets the pipe's axis 1.0 along it."""
+    from canalsurf.skeleton import _junctions_placed
+
+    graph = (0.0, 0.1, 0.0)
+    branches = [_polyline((-6.0, 0.0, 0.0), (-0.3, 0.0, 0.0), graph, radius=0.5, ends=(None, 0)),
+                _polyline(graph, (0.3, 0.0, 0.0), (6.0, 0.0, 0.0), radius=0.5, ends=(0, None)),
+                _polyline(graph, (0.2, 0.6, 0.0), (1.2, 1.1, 0.0), radius=0.6, ends=(0, None))]
+    out = _junctions_placed(Skeleton(branches, np.array([graph]), 0.1))
+    np.testing.assert_allclose(out.junctions[0], (0.0, 0.0, 0.0), atol=0.01)
+    np.testing.assert_array_equal(out.branches[2].points, branches[2].points)
+    np.testing.assert_array_equal(out.branches[2].radius, branches[2].radius)

@@ -85,8 +85,10 @@ BRIDGE_PARALLEL = 15.0
 #: and the points the fits leave out round a junction are measured from it.  A junction is placed where the lines of its branches
 #: meet, each line fitted to the branch's vertices between JUNCTION_LINE_RADII (of the largest tube
 #: there) from the junction: past the merging, near enough for a bending branch to be nearly straight.
-#: It is left where it is when fewer than two branches reach that far, or when the lines meet farther
-#: than JUNCTION_MOVE_RADII from it (a tangle of the thin set, not a junction misplaced).
+#: Only branches that run past that stretch give a line (a shorter one is a stub, or a link of the thin
+#: set between two tubes side by side, and its line goes nowhere).  The junction is left where it is when
+#: fewer than two do, or when the lines meet farther than JUNCTION_MOVE_RADII from it (a tangle of the
+#: thin set, not a junction misplaced).
 JUNCTION_LINE_RADII = (1.5, 3.0)
 JUNCTION_MOVE_RADII = 2.0
 
@@ -344,9 +346,9 @@ def skeletonize(points: np.ndarray, radius: np.ndarray, *, spacing) -> Skeleton:
 
 def _junctions_placed(skeleton: Skeleton) -> Skeleton:
     """The skeleton with each junction moved to where the lines of its branches meet (least squares;
-    see JUNCTION_LINE_RADII), and the branches run from it: a branch's vertices nearer its moved end
-    than the lines' stretch are spread evenly on the straight line from the junction point to the first
-    vertex beyond (on a branch shorter than that, to its last), keeping their thin points.  Their r_i
+    see JUNCTION_LINE_RADII), and the branches that gave a line run from it: their vertices nearer the
+    moved end than the lines' stretch are spread evenly on the straight line from the junction point to
+    the first vertex beyond, keeping their thin points.  Their r_i
     took in the other tubes' points where the thin sets merge: they take that vertex's r_i."""
     branches, junctions = list(skeleton.branches), skeleton.junctions.copy()
     eq6 = [float(np.average(b.radius, weights=b.weights)) if b.weights.sum() > 0 else float(np.mean(b.radius))
@@ -357,28 +359,29 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
             continue
         largest = max(eq6[i] for i, _ in ends)
         near, far = np.multiply(JUNCTION_LINE_RADII, largest)
-        A, rhs, lines = np.zeros((3, 3)), np.zeros(3), 0
+        A, rhs, lined = np.zeros((3, 3)), np.zeros(3), []
         for i, e in ends:
             pts = branches[i].points if e == 0 else branches[i].points[::-1]
             s = _from_start(pts)
             window = pts[(s >= near) & (s <= far)]
-            if len(window) < 3:
+            if len(window) < 3 or s[-1] < far:
                 continue
             centre = window.mean(axis=0)
             d = np.linalg.svd(window - centre, full_matrices=False)[2][0]
             P = np.eye(3) - np.outer(d, d)
-            A, rhs, lines = A + P, rhs + P @ centre, lines + 1
-        if lines < 2:
+            A, rhs = A + P, rhs + P @ centre
+            lined.append((i, e))
+        if len(lined) < 2:
             continue
         # A light pull to the graph's junction fixes the point along lines that are parallel (a tee's run).
-        pull = 1e-3 * lines
+        pull = 1e-3 * len(lined)
         point = np.linalg.solve(A + pull * np.eye(3), rhs + pull * junctions[j])
         if np.linalg.norm(point - junctions[j]) > JUNCTION_MOVE_RADII * largest:
             continue
         junctions[j] = point
-        for i, e in ends:
+        for i, e in lined:
             b = branches[i] if e == 0 else _reversed(branches[i])
-            m = max(1, min(int(np.sum(_from_start(b.points) < near)), len(b.points) - 1))
+            m = max(1, int(np.sum(_from_start(b.points) < near)))
             pts = b.points.copy()
             pts[:m] = point + np.outer(np.arange(m) / m, pts[m] - point)
             radius = b.radius.copy()
