@@ -82,13 +82,13 @@ SIDE_GAP_RADII = 2.0
 BRIDGE_WINDOW_RADII = (3.0, 8.0)
 BRIDGE_PARALLEL = 15.0
 #: The graph's nodes round a junction lie where the tubes' thin sets merge, not where their axes meet,
-#: and the points the fits leave out round a junction are measured from it.  A junction is placed where the lines of its branches
-#: meet, each line fitted to the branch's vertices between JUNCTION_LINE_RADII (of the largest tube
-#: there) from the junction: past the merging, near enough for a bending branch to be nearly straight.
-#: Only branches that run past that stretch give a line (a shorter one is a stub, or a link of the thin
-#: set between two tubes side by side, and its line goes nowhere).  The junction is left where it is when
-#: fewer than two do, or when the lines meet farther than JUNCTION_MOVE_RADII from it (a tangle of the
-#: thin set, not a junction misplaced).
+#: and the points the fits leave out round a junction are measured from it.  So a junction is placed
+#: where the lines of its branches meet, each line fitted to the branch's vertices between
+#: JUNCTION_LINE_RADII (of the largest tube there) from the junction: past the merging, near enough for
+#: a bending branch to be nearly straight.  Only branches that run past that stretch give a line (a
+#: shorter one is a stub, or a link of the thin set between two tubes side by side, and its line goes
+#: nowhere).  The junction is left where it is when fewer than two do, or when the lines meet farther
+#: than JUNCTION_MOVE_RADII from it (a tangle of the thin set, not a junction misplaced).
 JUNCTION_LINE_RADII = (1.5, 3.0)
 JUNCTION_MOVE_RADII = 2.0
 
@@ -348,8 +348,8 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
     """The skeleton with each junction moved to where the lines of its branches meet (least squares;
     see JUNCTION_LINE_RADII), and the branches that gave a line run from it: their vertices nearer the
     moved end than the lines' stretch are spread evenly on the straight line from the junction point to
-    the first vertex beyond, keeping their thin points.  Their r_i
-    took in the other tubes' points where the thin sets merge: they take that vertex's r_i."""
+    the first vertex beyond, keeping their thin points, and take that vertex's r_i (theirs took in the
+    other tubes' points where the thin sets merge)."""
     branches, junctions = list(skeleton.branches), skeleton.junctions.copy()
     eq6 = [float(np.average(b.radius, weights=b.weights)) if b.weights.sum() > 0 else float(np.mean(b.radius))
            for b in branches]
