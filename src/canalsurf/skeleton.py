@@ -91,6 +91,13 @@ BRIDGE_PARALLEL = 15.0
 #: than JUNCTION_MOVE_RADII from it (a tangle of the thin set, not a junction misplaced).
 JUNCTION_LINE_RADII = (1.5, 3.0)
 JUNCTION_MOVE_RADII = 2.0
+#: Along a direction that one line alone fixes (a tee's run, fixed by its side branch only), the thin set's
+#: bias where a thin branch nears a thick one can swing that line by more than the graph's junction is
+#: off.  So a line that alone would move the junction along such a direction by more than the narrowest
+#: branch's radius (that branch's footprint on the others) is left out.  The lines fix a direction v by
+#: the eigenvalue of the sum of their projections across, the sum of sin^2 of their angles to v: one line
+#: across gives 1, a Y's three lines 1.5.
+JUNCTION_ONE_LINE = 1.25
 
 
 @dataclass
@@ -359,7 +366,7 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
             continue
         largest = max(eq6[i] for i, _ in ends)
         near, far = np.multiply(JUNCTION_LINE_RADII, largest)
-        A, rhs, lined = np.zeros((3, 3)), np.zeros(3), []
+        lines, lined = [], []
         for i, e in ends:
             pts = branches[i].points if e == 0 else branches[i].points[::-1]
             s = _from_start(pts)
@@ -368,14 +375,11 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
                 continue
             centre = window.mean(axis=0)
             d = np.linalg.svd(window - centre, full_matrices=False)[2][0]
-            P = np.eye(3) - np.outer(d, d)
-            A, rhs = A + P, rhs + P @ centre
+            lines.append((np.eye(3) - np.outer(d, d), centre))
             lined.append((i, e))
         if len(lined) < 2:
             continue
-        # A light pull to the graph's junction fixes the point along lines that are parallel (a tee's run).
-        pull = 1e-3 * len(lined)
-        point = np.linalg.solve(A + pull * np.eye(3), rhs + pull * junctions[j])
+        point = _lines_meet(lines, junctions[j], min(eq6[i] for i, _ in lined))
         if np.linalg.norm(point - junctions[j]) > JUNCTION_MOVE_RADII * largest:
             continue
         junctions[j] = point
@@ -389,6 +393,25 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
             b = SkeletonBranch(pts, b.weights, radius, b.ends, b.closed)
             branches[i] = b if e == 0 else _reversed(b)
     return Skeleton(branches, junctions, skeleton.link)
+
+
+def _lines_meet(lines: list, graph: np.ndarray, narrowest: float) -> np.ndarray:
+    """Where ``lines`` (pairs of a projection across a line and a point on it) meet in the least-squares
+    sense, moving from ``graph`` only along the directions they fix.  A line that alone would move it
+    along a direction that fewer than two lines fix (see JUNCTION_ONE_LINE) by more than ``narrowest`` is
+    left out; ``graph`` itself when fewer than two lines are left."""
+    lines = list(lines)
+    while len(lines) >= 2:
+        A = sum(P for P, _ in lines)
+        w, V = np.linalg.eigh(A)
+        move = V.T @ sum(P @ (c - graph) for P, c in lines) / np.maximum(w, np.finfo(float).tiny)
+        move[w < 1e-6] = 0.0
+        wild = (w < JUNCTION_ONE_LINE) & (np.abs(move) > narrowest)
+        if not wild.any():
+            return graph + V @ move
+        v = V[:, np.argmax(wild)]
+        lines.pop(int(np.argmax([v @ P @ v for P, _ in lines])))
+    return graph
 
 
 def _from_start(pts: np.ndarray) -> np.ndarray:
