@@ -779,15 +779,15 @@ def test_a_link_between_two_pipes_side_by_side_moves_no_junction_along_them():
 
 
 @pytest.mark.parametrize(("meets", "placed"), [
-    (0.3, (0.3, 0.0, 0.0)),   # within the side branch's radius (0.4) of the graph's junction along the run
+    (0.8, (0.8, 0.0, 0.0)),   # within the run's radius (1) of the graph's junction along the run
     (1.5, (0.0, 0.0, 0.0)),   # farther: the side line alone cannot move it along the run
 ])
-def test_a_side_line_alone_moves_a_junction_along_its_run_only_within_the_side_branchs_radius(meets, placed):
+def test_a_side_line_alone_moves_a_junction_along_its_run_only_within_the_largest_radius(meets, placed):
     """A tee whose side branch (radius 0.4) leaves its run (radius 1) at 50 degrees, the graph's junction
     0.2 off the run's axis: the run's two lines are parallel, so the side line alone fixes where along the
-    run the lines meet.  Where it meets the run's axis farther along than the side branch's radius, that
-    line is left out (a thin branch's thin set lies off its axis near a thick one), and the junction is
-    only moved onto the run's axis."""
+    run the lines meet.  Where it meets the run's axis farther along than the run's radius, that line is
+    left out (a thin branch's thin set lies off its axis near a thick one), and the junction is only
+    moved onto the run's axis."""
     from canalsurf.skeleton import _junctions_placed
 
     graph = np.array((0.0, 0.2, 0.0))
@@ -798,5 +798,6 @@ def test_a_side_line_alone_moves_a_junction_along_its_run_only_within_the_side_b
                 _polyline(graph, (0.3, 0.0, 0.0), (6.0, 0.0, 0.0), radius=1.0, ends=(0, None)),
                 _polyline(graph, foot, foot + 7.0 * d, radius=0.4, ends=(0, None))]
     out = _junctions_placed(Skeleton(branches, np.array([graph]), 0.1))
-    np.testing.assert_allclose(out.junctions[0], placed, atol=1e-9)
+    # within the light pull to the graph's junction
+    np.testing.assert_allclose(out.junctions[0], placed, atol=0.005)
     assert all(np.array_equal(b.points[-1 if b.ends[1] == 0 else 0], out.junctions[0]) for b in out.branches)

@@ -93,9 +93,9 @@ JUNCTION_LINE_RADII = (1.5, 3.0)
 JUNCTION_MOVE_RADII = 2.0
 #: Along a direction that one line alone fixes (a tee's run, fixed by its side branch only), the thin set's
 #: bias where a thin branch nears a thick one can swing that line by more than the graph's junction is
-#: off.  So a line that alone would move the junction along such a direction by more than the narrowest
-#: branch's radius (that branch's footprint on the others) is left out.  The lines fix a direction v by
-#: the eigenvalue of the sum of their projections across, the sum of sin^2 of their angles to v: one line
+#: off; and that junction lies within the largest tube there.  So a line that alone would move it along
+#: such a direction by more than the largest radius is left out.  The lines fix a direction v by the
+#: eigenvalue of the sum of their projections across, the sum of sin^2 of their angles to v: one line
 #: across gives 1, a Y's three lines 1.5.
 JUNCTION_ONE_LINE = 1.25
 
@@ -379,7 +379,7 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
             lined.append((i, e))
         if len(lined) < 2:
             continue
-        point = _lines_meet(lines, junctions[j], min(eq6[i] for i, _ in lined))
+        point = _lines_meet(lines, junctions[j], largest)
         if np.linalg.norm(point - junctions[j]) > JUNCTION_MOVE_RADII * largest:
             continue
         junctions[j] = point
@@ -395,18 +395,17 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
     return Skeleton(branches, junctions, skeleton.link)
 
 
-def _lines_meet(lines: list, graph: np.ndarray, narrowest: float) -> np.ndarray:
+def _lines_meet(lines: list, graph: np.ndarray, radius: float) -> np.ndarray:
     """Where ``lines`` (pairs of a projection across a line and a point on it) meet in the least-squares
     sense, moving from ``graph`` only along the directions they fix.  A line that alone would move it
-    along a direction that fewer than two lines fix (see JUNCTION_ONE_LINE) by more than ``narrowest`` is
+    along a direction that fewer than two lines fix (see JUNCTION_ONE_LINE) by more than ``radius`` is
     left out; ``graph`` itself when fewer than two lines are left."""
     lines = list(lines)
     while len(lines) >= 2:
-        A = sum(P for P, _ in lines)
-        w, V = np.linalg.eigh(A)
-        move = V.T @ sum(P @ (c - graph) for P, c in lines) / np.maximum(w, np.finfo(float).tiny)
-        move[w < 1e-6] = 0.0
-        wild = (w < JUNCTION_ONE_LINE) & (np.abs(move) > narrowest)
+        w, V = np.linalg.eigh(sum(P for P, _ in lines))
+        # A light pull to ``graph`` holds it along lines that are (nearly) parallel (a tee's run).
+        move = V.T @ sum(P @ (c - graph) for P, c in lines) / (w + 1e-3 * len(lines))
+        wild = (w < JUNCTION_ONE_LINE) & (np.abs(move) > radius)
         if not wild.any():
             return graph + V @ move
         v = V[:, np.argmax(wild)]
