@@ -449,10 +449,17 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         except ReconstructionError as exc:
             log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
             break
-        if run.r0 > MAX_SCALE_RATIO * first.r0 or _explained_share(run) < MIN_EXPLAINED_SHARE:
+        if run.r0 > MAX_SCALE_RATIO * first.r0:
             log.info("the %d points left unexplained hold no further tubes (r0 = %.4g): no further pass", len(pool),
                      run.r0 * scan.scale)
             break
+        share = _explained_share(run)
+        if share < MIN_EXPLAINED_SHARE:
+            # What it left unexplained is clutter or tubes still too sparse: the tubes it did resolve
+            # are kept, and a further pass may draw the rest denser.
+            log.info("the skeleton of the further pass explains %.0f%% of its %d curved points: its other thin "
+                     "points are dropped", 100 * share, len(run.curved))
+            run = _trimmed(run)
         log.info("a further pass on %d points left unexplained: r0 = %.4g, %d thin points",
                  len(pool), run.r0 * scan.scale, len(run.thin))
         run.pool = pool
