@@ -232,3 +232,28 @@ def test_a_reducer_in_a_piping_scan_is_fitted_as_a_canal_whole():
     assert sum(b.kind == "canal" for b in network.branches) == 1
     for b in compare_network(network, truth)["branches"]:
         assert b["covered"] >= COVERED and b["spine_mean"] <= SPINE_MEAN, b
+
+
+def test_the_first_estimate_takes_the_points_past_a_thin_set_that_ends_with_scattered_radii():
+    """A tube of radius 1 from z = 0 to 8 whose thin set stops at z = 6, its last r_i scattered (0.55, then
+    1.25): the estimate's radius function slopes steeply there.  Continued by that slope, its stand-in
+    widened to about twice the radius a radius past the end and took none of the tube's points there
+    (a short stub of a 2-million-point plant was lost so); held at its end value, it takes them."""
+    from canalsurf.pipeline import ASSIGN_END_RADII, _assign, _Estimates, _Fittable, _first_guess
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    z = np.linspace(0.0, 6.0, 13)
+    radius = np.ones_like(z)
+    radius[-2:] = 0.55, 1.25
+    weights = np.full(len(z), 4.0)
+    weights[-1] = 13.0
+    branch = SkeletonBranch(np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), weights, radius, (None, None))
+    skel = Skeleton([branch], np.empty((0, 3)), 0.5)
+    rng = np.random.default_rng(0)
+    angle, height = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 8.0, 20_000)
+    points = np.column_stack([np.cos(angle), np.sin(angle), height])
+    guess = _first_guess(branch)
+    assert guess["radius"](1.0) > 1.1  # the slope the test is about
+    taken = _assign(points, _Estimates([guess], skel), _Fittable(points, np.ones(len(points), bool)), 0)
+    past = (points[:, 2] > 6.0) & (points[:, 2] < 6.0 + ASSIGN_END_RADII)
+    assert np.isin(np.flatnonzero(past), taken).mean() > 0.95

@@ -769,14 +769,16 @@ def _fit_points(scan: _Scan, passes: list, n_branches: int) -> tuple[np.ndarray,
 
 
 def _stand_in(g: dict, branch: SkeletonBranch, i: int) -> CanalModel:
-    """A first tube estimate as a model, continued ``ASSIGN_END_RADII`` radii past its open ends."""
+    """A first tube estimate as a model, continued ``ASSIGN_END_RADII`` radii past its open ends: the
+    spine straight on, the radius held at its end value (its slope there is the thin set's end, where
+    the r_i scatter most: continued, it can reach several radii)."""
     spine, radius = g["spine"], g["radius"]
     if not g["closed"]:
         ext = ASSIGN_END_RADII * g["eq6"] / curve_length(spine)
         a, b = (0.0 if branch.ends[0] is not None else -ext), (1.0 if branch.ends[1] is not None else 1 + ext)
         nseg, rseg = g["segments"]
-        spine, (radius,), _ = arclength_reparametrize(extended(spine), n_segments=nseg + 2, closed=False,
-                                                      a=a, b=b, extra=[(extended(radius), rseg + 2)])
+        spine, (radius,), _ = arclength_reparametrize(extended(spine), n_segments=nseg + 2, closed=False, a=a, b=b,
+                                                      extra=[(lambda t, f=radius: f(np.clip(t, 0.0, 1.0)), rseg + 2)])
     return CanalModel("canal", spine, radius, g["closed"], id=i)
 
 
