@@ -453,13 +453,6 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
             log.info("the %d points left unexplained hold no further tubes (r0 = %.4g): no further pass", len(pool),
                      run.r0 * scan.scale)
             break
-        share = _explained_share(run)
-        if share < MIN_EXPLAINED_SHARE:
-            # What it left unexplained is clutter or tubes still too sparse: the tubes it did resolve
-            # are kept, and a further pass may draw the rest denser.
-            log.info("the skeleton of the further pass explains %.0f%% of its %d curved points: its other thin "
-                     "points are dropped", 100 * share, len(run.curved))
-            run = _trimmed(run)
         log.info("a further pass on %d points left unexplained: r0 = %.4g, %d thin points",
                  len(pool), run.r0 * scan.scale, len(run.thin))
         run.pool = pool
@@ -468,6 +461,14 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         runs[-1] = _trimmed(runs[-1])
         runs.append(run)
         coarser = run.r0
+        share = _explained_share(run)
+        if share < MIN_EXPLAINED_SHARE:
+            # Most of what it saw is clutter, or tubes too sparse for it: the tubes it resolved stay, its
+            # other thin points go, and what it leaves is drawn no further.
+            log.info("the skeleton of the further pass explains %.0f%% of its %d curved points: the last pass",
+                     100 * share, len(run.curved))
+            runs[-1] = _trimmed(run)
+            break
     return runs
 
 
