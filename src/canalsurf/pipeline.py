@@ -1233,6 +1233,36 @@ MAX_INSIDE_OTHERS = 0.5
 INSIDE_SAMPLES = 100
 
 
+#: A branch that runs inside other tubes keeps its longest stretch outside them, if that stretch is at least
+#: OWN_PART_RADII of its radius long and holds no junction end: a stub whose thin set ran on into the tube
+#: it leaves (an L, with no junction where they meet) is a tube there, while a copy of a tube or a link
+#: across the ends of two leaves nothing that long outside.
+OWN_PART_RADII = 4.0
+
+
+def _own_part(fits: list, branch: SkeletonBranch, radius: float) -> SkeletonBranch | None:
+    """The part of an open skeleton branch outside the tubes of ``fits`` (falsy entries skipped) as a
+    branch of its own (see OWN_PART_RADII), or ``None``."""
+    others = [f for f in fits if f]
+    if branch.closed or not others:
+        return None
+    t = np.linspace(0.0, 1.0, INSIDE_SAMPLES)
+    pts = np.concatenate([f.spine(t) for f in others])
+    r = np.concatenate([f.radius(t) for f in others])
+    inside = np.array([bool(np.any(np.linalg.norm(pts[near] - p, axis=1) < r[near])) for p, near in
+                       zip(branch.points, cKDTree(pts).query_ball_point(branch.points, float(r.max())))])
+    edges = np.flatnonzero(np.diff(np.concatenate([[True], inside, [True]]).astype(int)))
+    runs = edges.reshape(-1, 2)  # [start, stop) of each stretch outside
+    if not len(runs):
+        return None
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(branch.points, axis=0), axis=1))])
+    a, b = max(runs, key=lambda run: s[run[1] - 1] - s[run[0]])
+    if (b - a < 4 or s[b - 1] - s[a] < OWN_PART_RADII * radius
+            or (a > 0 and branch.ends[0] is not None) or (b < len(inside) and branch.ends[1] is not None)):
+        return None
+    return SkeletonBranch(branch.points[a:b], branch.weights[a:b], branch.radius[a:b], branch.ends, False)
+
+
 def _inside_others(fits: list, skel: Skeleton) -> list:
     """Indices of the fitted branches whose spine runs inside other fitted tubes (see MAX_INSIDE_OTHERS).
 
@@ -1373,7 +1403,8 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     """
     fits = [None] * len(skel.branches)
     fittable = _Fittable(points, curved)
-    for _ in range(MAX_FIT_ROUNDS):
+    cut = set()  # branches cut to their part outside other tubes
+    for round_ in range(MAX_FIT_ROUNDS):
         estimates = _Estimates([_first_guess(b) for b in skel.branches], skel)
         job = {"points": points, "estimates": estimates, "fittable": fittable, "kappa": kappa, "kind": kind,
                "refine": refine, "noise": noise, "quantum": quantum}
@@ -1385,17 +1416,30 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             fits[i] = fit
         if refine:
             skel, fits = _joined_pieces(fits, skel, job, client)
-        for i in _inside_others(fits, skel):
-            reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
+        inside = _inside_others(fits, skel)
+        rest = [False if k in inside else f for k, f in enumerate(fits)]
+        for i in inside:
+            # A part cut in the last round could not be fitted.
+            last = round_ == MAX_FIT_ROUNDS - 1
+            part = None if i in cut or last else _own_part(rest, skel.branches[i], fits[i].eq6)
+            if part is None:
+                reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
+            else:
+                skel = replace(skel, branches=[part if k == i else b for k, b in enumerate(skel.branches)])
+                fits[i] = None
+                cut.add(i)
         drop = [i for i, f in enumerate(fits) if f is False]
         if not drop:
-            break
+            if all(fits):
+                break
+            continue
         if len(drop) == len(fits):
             raise ReconstructionError(f"no part of the cloud is a tube ({reason or 'no branch could be fitted'})"
                                       " — check the input is a scan of pipes or canals")
         log.info("%d of %d branches are no tube (left out): %s", len(drop), len(fits), reason)
         skel, origin = without_branches(skel, drop)
         fits = [None if o is None else fits[o] for o in origin]
+        cut = {n for n, o in enumerate(origin) if o in cut}
     else:
         if any(f is None or f is False for f in fits):
             raise ReconstructionError("the branches of the network could not be fitted — the input is not a tube")
