@@ -966,6 +966,10 @@ def _quality(fit: _BranchFit) -> dict:
 #: it on sparse, quantised one-sided scans, where curvature is underestimated) is several thinner
 #: tubes, or a coil, read as one wide tube.
 MAX_RADIUS_PER_CURVING = 2.5
+#: A branch whose points' median curvature radius exceeds this many times its radius lies on a nearly
+#: flat surface: a strip of ground that a tube touches from below fits it within a coarse grid's
+#: rounding.  Set far above the 3 of one-sided scans: curvature reads lowest on thin, sparse branches.
+MAX_CURVING_PER_RADIUS = 20.0
 #: A branch seen from one side (ONE_SIDED_DEGREES) whose radius exceeds this many times its Eq. (6)
 #: radius -- the mean distance its points moved to their thin images -- is a fit that left its points'
 #: own scale: a circle through a narrow arc, as through the tops of several thinner pipes side by side.
@@ -1000,6 +1004,9 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
     if q["radius"] > MAX_RADIUS_PER_CURVING * q["curving"]:
         return False, (f"the points curve far more tightly (radius {q['curving']:.2g}) than the one tube through "
                        f"them (radius {q['radius']:.2g}): thinner tubes side by side or a coil, not one tube")
+    if q["curving"] > MAX_CURVING_PER_RADIUS * q["radius"]:
+        return False, (f"the points lie on a nearly flat surface (curvature radius {q['curving']:.2g}, "
+                       f"{q['curving'] / q['radius']:.0f} times the best tube's radius): not a tube")
     if q["coverage"] < C.ONE_SIDED_DEGREES and q["radius"] > MAX_RADIUS_PER_EQ6 * q["eq6"]:
         return False, (f"the best tube (radius {q['radius']:.2g}) is far wider than the distance the points "
                        f"moved to its spine (radius {q['eq6']:.2g}): not the tube the points came from")
