@@ -31,7 +31,7 @@ from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
-from .skeleton import Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches
+from .skeleton import MIN_BRANCH_POINTS, Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches
 from .spine import (arclength_reparametrize, constant_spline, curvature, curve_length, pspline_fit, reversed_spline,
                     sample_arclength)
 
@@ -456,18 +456,21 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         log.info("a further pass on %d points left unexplained: r0 = %.4g, %d thin points",
                  len(pool), run.r0 * scan.scale, len(run.thin))
         run.pool = pool
-        # What the last pass could not explain is this one's now: its thin points from those points (a
-        # tube too thin for that scale, shrunk past its spine) would only link tubes that are apart.
-        runs[-1] = _trimmed(runs[-1])
-        runs.append(run)
-        coarser = run.r0
         share = _explained_share(run)
         if share < MIN_EXPLAINED_SHARE:
             # Most of what it saw is clutter, or tubes too sparse for it: the tubes it resolved stay, its
             # other thin points go, and what it leaves is drawn no further.
             log.info("the skeleton of the further pass explains %.0f%% of its %d curved points: the last pass",
                      100 * share, len(run.curved))
-            runs[-1] = _trimmed(run)
+            run = _trimmed(run)
+            if len(run.thin) < MIN_BRANCH_POINTS:
+                break  # it resolved no tube: the last pass keeps all it found
+        # What the last pass could not explain is this one's now: its thin points from those points (a
+        # tube too thin for that scale, shrunk past its spine) would only link tubes that are apart.
+        runs[-1] = _trimmed(runs[-1])
+        runs.append(run)
+        coarser = run.r0
+        if share < MIN_EXPLAINED_SHARE:
             break
     return runs
 
