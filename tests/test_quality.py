@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 
 import canalsurf
-from canalsurf.quality import (CHECK_GAP_RADII, CHECK_NO_TUBE_SHARE, POOR_COVERAGE_DEGREES, POOR_GAP_RADII,
+from canalsurf.metrics import compare
+from canalsurf.quality import (CHECK_GAP_RADII, CHECK_NO_TUBE_SHARE, CLAIMS, POOR_COVERAGE_DEGREES, POOR_GAP_RADII,
                                branch_quality, scan_quality, support_gap)
+from canalsurf.synth import CONDITIONS
 
 #: A branch with nothing to doubt: radius 1, noise 0.01, seen all round, no gap, round.
 CLEAN = {"rms": 0.01, "radius": 1.0, "noise": 0.01, "coverage": 340.0, "gap": 0.1, "out_of_round": 0.005}
@@ -109,6 +111,27 @@ def test_fold_finds_a_hairpin_and_a_kink_but_not_a_tube():
     assert "too short" in fold(torus.spine, constant_spline(6.0), True)
 
 
+def test_fold_finds_a_hairpin_whose_legs_touch_but_not_a_coil_or_an_elbow():
+    from canalsurf.quality import fold
+    from canalsurf.spine import constant_spline
+
+    def u_turn(bend, legs=6.0):
+        t = np.linspace(0, np.pi, 60)
+        x = np.r_[np.linspace(-legs, 0, 30)[:-1], bend * np.sin(t), np.linspace(0, -legs, 30)[1:]]
+        y = np.r_[np.zeros(29), bend - bend * np.cos(t), np.full(29, 2 * bend)]
+        return _polyline_spline(np.column_stack([x, y, np.zeros(len(x))]))
+
+    # Legs 2 radii apart: the tubes about them touch, past the clearance, and the tip turns round
+    # within 2 radii.  A bend of radius 1 D (legs 4 radii apart) is a pipe's tightest elbow.
+    why = fold(u_turn(1.0), constant_spline(1.0), False)
+    assert "hairpin whose legs touch" in why and "runs back 2.0 radii" in why
+    assert fold(u_turn(2.0), constant_spline(1.0), False) == ""
+    # A coil whose turns touch (pitch 2 radii) runs alongside itself but never turns round.
+    a = np.linspace(0, 6 * np.pi, 400)
+    coil = _polyline_spline(np.column_stack([3 * np.cos(a), 3 * np.sin(a), 2 * a / (2 * np.pi)]))
+    assert fold(coil, constant_spline(1.0), False) == ""
+
+
 def test_fold_finds_a_spine_that_bends_more_tightly_than_its_radius():
     """A spine wiggling 0.05 to either side every unit of length bends with curvature up to 2: round a tube
     of radius 1 it does so more tightly than the radius along two thirds of it (the surface passes through
@@ -122,3 +145,19 @@ def test_fold_finds_a_spine_that_bends_more_tightly_than_its_radius():
     assert why.startswith("the spine bends more tightly than the tube's radius along ") and "passes through itself" in why
     assert int(why.split("along ")[1].split("%")[0]) / 100 > FOLD_BEND_SHARE
     assert fold(wiggle, constant_spline(0.3), False) == ""
+
+
+@pytest.mark.parametrize("seed", [100, 104])
+def test_a_pipe_fit_run_back_alongside_its_sparse_end_is_refused_or_right(seed):
+    # On a tube ten times sparser at one end, a pipe fit's other end crept on and turned back alongside
+    # the tube: a hairpin whose legs touch, 2 radii apart (past the clearance), graded check half a
+    # radius off.
+    name, options = CONDITIONS["density-x10"]
+    tube = canalsurf.make_tube(name, rng=seed, **options)
+    try:
+        model = canalsurf.reconstruct(tube.points, kind="pipe")
+    except canalsurf.ReconstructionError as exc:
+        assert "turns back on itself" in str(exc)
+        return
+    c = compare(model, tube)
+    assert c["spine_mean"] / c["mean_radius"] <= CLAIMS[model.diagnostics["quality"]]["spine"]

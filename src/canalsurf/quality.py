@@ -69,6 +69,13 @@ FOLD_SAMPLES = 600
 #: is pi) that come closer in space than the sum of their radii times the second constant
 #: pass through each other.
 FOLD_ALONG_RADII, FOLD_CLEARANCE = np.pi, 0.9
+#: A spine that turns by more than a right angle within the first many radii and runs back within
+#: the second times the sum of the radii of itself is a hairpin whose legs touch -- two tubes side by
+#: side -- even where it passes the clearance.  A pipe fit whose end crept on and turned back along
+#: the tube did so (legs 1.96-2.0 radii apart, turning 116-126 degrees within 2 radii).  Neither
+#: alone is a fold: a coil's turns touch, and an unrefined spline's wiggle can turn a right angle
+#: within 2 radii.
+FOLD_HAIRPIN_RADII, FOLD_TOUCH = 2.0, 1.25
 
 
 def fold(spine, radius, closed: bool, *, junctions=()) -> str:
@@ -98,10 +105,7 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
         return ""
     tangent = spine.derivative()(t)
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
-    ahead = np.searchsorted(s, s + FOLD_TURN_RADII * r)
-    inside = ahead < len(s)
-    turned = np.einsum("ij,ij->i", tangent[inside], tangent[ahead[inside]]) < 0
-    if turned.any():
+    if _turns_back(s, tangent, FOLD_TURN_RADII * r):
         return "the spine turns back on itself within a radius (a hook or a hairpin)"
     tight = float(np.mean(curvature(spine, t) * r > 1.0))
     if tight > FOLD_BEND_SHARE:
@@ -111,18 +115,31 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     # the dense matrix of all pairs cost tens of milliseconds on every fit.
     from scipy.spatial import cKDTree
 
-    i, j = cKDTree(pts).query_pairs(2 * FOLD_CLEARANCE * r.max(), output_type="ndarray").T
+    i, j = cKDTree(pts).query_pairs(2 * FOLD_TOUCH * r.max(), output_type="ndarray").T
     along = np.abs(s[i] - s[j])
     if closed:
         along = np.minimum(along, length - along)
     apart = np.linalg.norm(pts[i] - pts[j], axis=1)
     wider = np.maximum(r[i], r[j])
-    close = np.flatnonzero((along > FOLD_ALONG_RADII * wider) & (apart < FOLD_CLEARANCE * (r[i] + r[j])))
+    far_along = along > FOLD_ALONG_RADII * wider
+    close = np.flatnonzero(far_along & (apart < FOLD_CLEARANCE * (r[i] + r[j])))
     if len(close):
         k = close[np.lexsort((j[close], i[close]))[0]]  # the first pair in order along the spine
         return (f"the spine passes within {apart[k] / wider[k]:.1f} radii of itself "
                 f"{along[k] / wider[k]:.0f} radii further along it (a fold)")
+    touch = np.flatnonzero(far_along & (apart < FOLD_TOUCH * (r[i] + r[j])))
+    if len(touch) and _turns_back(s, tangent, FOLD_HAIRPIN_RADII * r):
+        k = touch[np.argmin(apart[touch] / wider[touch])]
+        return (f"the spine turns back on itself within {FOLD_HAIRPIN_RADII:g} radii and runs back "
+                f"{apart[k] / wider[k]:.1f} radii from itself (a hairpin whose legs touch)")
     return ""
+
+
+def _turns_back(s: np.ndarray, tangent: np.ndarray, reach: np.ndarray) -> bool:
+    """Whether the unit ``tangent`` at arc lengths ``s`` turns by more than a right angle over ``reach``."""
+    ahead = np.searchsorted(s, s + reach)
+    inside = ahead < len(s)
+    return bool((np.einsum("ij,ij->i", tangent[inside], tangent[ahead[inside]]) < 0).any())
 
 
 def support_gap(t: np.ndarray, length: float, closed: bool) -> float:
