@@ -8,7 +8,7 @@ from scipy.interpolate import BSpline
 
 from canalsurf import synth
 from canalsurf.metrics import closest_point_distance, radius_error
-from canalsurf.refine import footpoints, refine, robust_sigma
+from canalsurf.refine import extended, footpoints, refine, robust_sigma
 from canalsurf.spine import constant_spline, curve_length
 
 SEED = 29
@@ -171,6 +171,46 @@ def test_refine_a_closed_spine():
     assert res.radius.c[0] == pytest.approx(1.0, rel=0.01)
     np.testing.assert_allclose(res.spine(0.0), res.spine(1.0), atol=1e-9)
     np.testing.assert_allclose(res.spine.derivative()(0.0), res.spine.derivative()(1.0), atol=1e-6)
+
+
+def test_a_spline_is_continued_along_its_chord_past_a_hook_at_its_end():
+    from scipy.interpolate import make_interp_spline
+
+    # Along x, but its first 0.02 hooked through 75 degrees (a first estimate's end can curl so).
+    turn = np.radians(75.0)
+    ctrl = np.vstack([[0.02 * np.cos(turn) - 0.02, 0.02 * np.sin(turn), 0.0],
+                      np.column_stack([np.linspace(0.0, 1.0, 21), np.zeros(21), np.zeros(21)])])
+    u = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(ctrl, axis=0), axis=1))]
+    f = make_interp_spline(u / u[-1], ctrl, k=3)
+    tip = f(0.0)
+    along_tangent = extended(f)(-0.2) - tip
+    along_chord = extended(f, 0.2)(-0.2) - tip
+    assert np.degrees(np.arctan2(abs(along_tangent[1]), abs(along_tangent[0]))) > 45
+    assert np.degrees(np.arctan2(abs(along_chord[1]), abs(along_chord[0]))) < 10  # the hook tip is off x
+    # Inside [0, 1] it is the spline itself, and past the far end it goes on along x.
+    np.testing.assert_allclose(extended(f, 0.2)(np.array([0.3, 0.7])), f(np.array([0.3, 0.7])))
+    np.testing.assert_allclose(extended(f, 0.2)(1.1)[1:], 0.0, atol=1e-9)
+    # An arc that turns 30 degrees over its last 0.2 is no hook: it goes on along its tangent.
+    a = np.radians(np.linspace(0.0, 150.0, 50))
+    arc = make_interp_spline(np.linspace(0.0, 1.0, 50), np.column_stack([np.cos(a), np.sin(a), np.zeros(50)]), k=3)
+    np.testing.assert_allclose(extended(arc, 0.2)(np.array([-0.1, 1.1])), extended(arc)(np.array([-0.1, 1.1])))
+
+
+@pytest.mark.parametrize("seed", [100, 104])
+def test_a_pipe_fit_from_an_estimate_whose_dense_end_hooks_is_right(seed):
+    # On a tube ten times sparser at one end, the first estimate's other end hooked (its tangent turned
+    # 94 and 65 degrees within a third of a radius); the pipe fit, continued along that hook, turned
+    # back alongside the tube (a hairpin 2 radii wide, half a radius off).
+    import canalsurf
+    from canalsurf.metrics import compare
+    from canalsurf.quality import CLAIMS
+
+    name, options = synth.CONDITIONS["density-x10"]
+    tube = synth.make_tube(name, rng=seed, **options)
+    model = canalsurf.reconstruct(tube.points, kind="pipe")
+    c = compare(model, tube)
+    assert model.diagnostics["quality"] == "good"
+    assert c["spine_mean"] / c["mean_radius"] <= CLAIMS["good"]["spine"]
 
 
 # --- robust sigma -----------------------------------------------------------------------------------

@@ -74,6 +74,12 @@ FOOTPOINT_COARSE = 256
 FOOTPOINT_RUN = 8
 #: Points per batch of the canal search: bounds its scratch memory (about 40 MB).
 FOOTPOINT_BATCH = 1 << 16
+#: An open spine whose tangent at an end is turned by more than this from its chord over the last
+#: reach hooks there: a first estimate's end can curl within a fraction of a radius (at the dense end
+#: of ``CONDITIONS["density-x10"]``, seeds 100 and 104, by 101 and 67 degrees; other ends of those
+#: estimates, wiggling, by 13-36), and continued along that tangent, through the tube's wall, the fit
+#: turned back alongside the tube.  It is continued along the chord instead.
+HOOK_DEGREES = 45.0
 #: A radius whose samples spread by less than this share of its size is a constant one that
 #: rounding made uneven (a pipe, searched by its nearest centre).
 PIPE_SPREAD = 1e-12
@@ -251,22 +257,30 @@ class RefineResult:
     iterations: int
 
 
-def extended(f: BSpline):
-    """``f`` continued beyond [0, 1] by its tangent line.
+def extended(f: BSpline, span: float = 0.0):
+    """``f`` continued beyond [0, 1] by its tangent line at each end -- or, for a curve whose tangent
+    there is turned more than ``HOOK_DEGREES`` from its chord over the last ``span`` of its parameter
+    (at most half of it), along that chord.
 
     A cubic's own end polynomial curls away when extrapolated; a tube that goes on past the current
     end of the spine goes on (locally) straight, and a canal's radius goes on changing at its rate
     there (held constant, the continuation misfits a clean scan's points past the end by r' times
     the distance, and they are cut as stray: the spine stops short).
     """
-    d = f.derivative()
+    rate = f.derivative()(np.array([0.0, 1.0]))
+    if span > 0:
+        span = min(span, 0.5)
+        chord = (f(np.array([span, 1.0])) - f(np.array([0.0, 1.0 - span]))) / span
+        cos = np.einsum("ij,ij->i", rate, chord) / np.maximum(
+            np.linalg.norm(rate, axis=1) * np.linalg.norm(chord, axis=1), 1e-300)
+        hooked = cos < np.cos(np.radians(HOOK_DEGREES))
+        rate[hooked] = chord[hooked]
 
     def g(t):
         t = np.asarray(t, float)
-        inside = np.clip(t, 0.0, 1.0)
-        out = f(inside)
-        over = (t - inside).reshape(t.shape + (1,) * (out.ndim - t.ndim))
-        return out + over * d(inside)
+        out = f(np.clip(t, 0.0, 1.0))
+        shape = t.shape + (1,) * (out.ndim - t.ndim)
+        return out + np.minimum(t, 0.0).reshape(shape) * rate[0] + np.maximum(t - 1.0, 0.0).reshape(shape) * rate[1]
 
     return g
 
@@ -362,15 +376,16 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
                 spine, n_segments=segs, closed=True,
                 extra=[] if rsegs is None else [(radius, rsegs)])
         else:
-            # Fit on the spine continued straight for ``reach`` past each end: points beyond the
-            # current end then meet the tube's continuation, not the end sphere.  The margins without
-            # points stay straight under the penalty and are trimmed off after the step.
-            # (Never more than the spine's own length: a spine shorter than the reach is no tube's.)
+            # Fit on the spine continued straight for ``reach`` past each end (along its chord where
+            # its end hooks, HOOK_DEGREES): points beyond the current end then meet the tube's
+            # continuation, not the end sphere.  The margins without points stay straight under the
+            # penalty and are trimmed off after the step.  (Never more than the spine's own length:
+            # a spine shorter than the reach is no tube's.)
             ext = min(reach / max(curve_length(spine), 1e-300), 1.0)
             segs = int(np.ceil(spine_segments * (1 + 2 * ext)))
             rsegs = None if rsegs is None else int(np.ceil(radius_segments * (1 + 2 * ext)))
             spine, extra, to_new = arclength_reparametrize(
-                extended(spine), n_segments=segs, closed=False, a=-ext, b=1 + ext,
+                extended(spine, ext), n_segments=segs, closed=False, a=-ext, b=1 + ext,
                 extra=[] if rsegs is None else [(extended(radius), rsegs)])
         if rsegs is not None:
             radius = extra[0]
