@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from .errors import InputError
 from .model import FORMAT, CanalModel, model_from_dict, _plain
 from .refine import footpoints
-from .spine import curve_length, pspline_fit, sample_arclength
+from .spine import curve_length, polyline_arclength, pspline_fit, sample_arclength
 
 __all__ = ["Network", "Junction", "classify_points", "network_mesh", "network_from_dict",
            "NETWORK_VERSION", "n_branch_samples"]
@@ -293,7 +293,7 @@ def _overlapping(branch: CanalModel, overlap: tuple) -> tuple[BSpline, BSpline]:
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts = branch.spine(inside) + ((t - inside) * length)[:, None] * d
     r = branch.radius(inside)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = polyline_arclength(pts)
     u = s / s[-1]
     segs = max(8, len(branch.spine.t) - 2 * branch.spine.k)
     return (pspline_fit(u, pts, n_segments=segs, smoothing=1e-9),

@@ -32,8 +32,8 @@ from .radius import curvature_radius, plausible_radius, prefer_canal, principal_
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import MIN_BRANCH_POINTS, Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches
-from .spine import (arclength_reparametrize, constant_spline, curvature, curve_length, pspline_fit, reversed_spline,
-                    sample_arclength)
+from .spine import (arclength_reparametrize, constant_spline, curvature, curve_length, polyline_arclength, pspline_fit,
+                    reversed_spline, sample_arclength)
 
 __all__ = ["reconstruct", "STAGES"]
 
@@ -457,7 +457,8 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
                  len(pool), run.r0 * scan.scale, len(run.thin))
         run.pool = pool
         share = _explained_share(run)
-        if share < MIN_EXPLAINED_SHARE:
+        last = share < MIN_EXPLAINED_SHARE
+        if last:
             # Most of what it saw is clutter, or tubes too sparse for it: the tubes it resolved stay, its
             # other thin points go, and what it leaves is drawn no further.
             log.info("the skeleton of the further pass explains %.0f%% of its %d curved points: the last pass",
@@ -470,7 +471,7 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         runs[-1] = _trimmed(runs[-1])
         runs.append(run)
         coarser = run.r0
-        if share < MIN_EXPLAINED_SHARE:
+        if last:
             break
     return runs
 
@@ -1100,7 +1101,7 @@ def _hooked_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
         return tail
     t, pts = sample_arclength(fit.spine, END_SAMPLES)
     r = fit.radius(t)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = polyline_arclength(pts)
     tight = curvature(fit.spine, t) * r > 1.0
     for end, near in ((0, s <= HOOK_RADII * r), (1, s >= s[-1] - HOOK_RADII * r)):
         hook = t[tight & near]
@@ -1265,7 +1266,7 @@ def _own_part(fits: list, branch: SkeletonBranch, radius: float) -> SkeletonBran
     runs = edges.reshape(-1, 2)  # [start, stop) of each stretch outside
     if not len(runs):
         return None
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(branch.points, axis=0), axis=1))])
+    s = polyline_arclength(branch.points)
     a, b = max(runs, key=lambda run: s[run[1] - 1] - s[run[0]])
     if (b - a < 4 or s[b - 1] - s[a] < OWN_PART_RADII * radius
             or (a > 0 and branch.ends[0] is not None) or (b < len(inside) and branch.ends[1] is not None)):
@@ -1428,9 +1429,8 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             skel, fits = _joined_pieces(fits, skel, job, client)
         inside = _inside_others(fits, skel)
         rest = [False if k in inside else f for k, f in enumerate(fits)]
+        last = round_ == MAX_FIT_ROUNDS - 1  # a part cut in the last round could not be fitted
         for i in inside:
-            # A part cut in the last round could not be fitted.
-            last = round_ == MAX_FIT_ROUNDS - 1
             part = None if i in cut or last else _own_part(rest, skel.branches[i], fits[i].eq6)
             if part is None:
                 reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
@@ -1519,14 +1519,14 @@ def _continue_to(fit: _BranchFit, end: int, target: np.ndarray) -> None:
     h00, h10, h01, h11 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u, -2 * u**3 + 3 * u**2, u**3 - u**2
     arc = h00 * p + h10 * gap * d + h01 * target + h11 * gap * d
     # A canal's radius goes on changing at its rate at the end (per unit of length along the arc).
-    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(np.vstack([p, arc]), axis=0), axis=1))])[1:]
+    along = polyline_arclength(np.vstack([p, arc]))[1:]
     rate = float(radius.derivative()(t_end)) / length * (1.0 if end == 1 else -1.0)
     r_arc = float(radius(t_end)) + rate * along
     if end == 1:
         pts, r = np.vstack([pts, arc]), np.r_[r, r_arc]
     else:
         pts, r = np.vstack([arc[::-1], pts]), np.r_[r_arc[::-1], r]
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = polyline_arclength(pts)
     s /= s[-1]
     grow = 1.0 + gap / length
     fit.spine = pspline_fit(s, pts, n_segments=math.ceil(nseg * grow), smoothing=1e-9)

@@ -39,7 +39,7 @@ from scipy.optimize import least_squares
 
 from ._validate import as_points, choice, positive
 from .errors import InputError, ReconstructionError
-from .spine import curve_length, sample_arclength
+from .spine import curve_length, polyline_arclength, sample_arclength
 
 __all__ = ["Piece", "Snap", "decompose", "snap_size", "surface_ramp", "write_pipes_csv", "CATALOGUES", "UNITS",
            "PIECE_TYPES", "CSV_COLUMNS"]
@@ -1030,7 +1030,7 @@ def _run_pieces(run: list, branches: dict, units: str, catalogue: str, first_id:
             p, rr = p[1:], rr[1:]
         pts.append(p), r.append(rr), owner.append(np.full(len(p), b))
     pts, r, owner = (np.concatenate(x) for x in (pts, r, owner))
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = polyline_arclength(pts)
     tol = max(_branch_tolerance(branches[b], radius) for b, _ in run)
     names = " + ".join(f"branch {b}" for b, _ in run)
     # Fit in units of the radius about the run's first point, so that the fit sees the same numbers in

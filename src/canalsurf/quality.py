@@ -87,11 +87,11 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     back) is two tubes in one place.  Neither is a pipe or canal surface.  Within ``junctions``
     (pairs of a point and a reach) the tubes meeting there are united and the spine is not checked.
     """
-    from .spine import curvature, sample_arclength
+    from .spine import curvature, polyline_arclength, sample_arclength
 
     t, pts = sample_arclength(spine, FOLD_SAMPLES)
     r = radius(t)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = polyline_arclength(pts)
     length = s[-1]
     if closed and length < 2 * np.pi * r.max():
         # A ring's tube is round about a spine that is itself a circle of at least its radius.

@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 
 from .constants import ORDER_CUT_LINKS, ORDER_CUT_SPACINGS
 from .errors import ReconstructionError
+from .spine import polyline_arclength
 from .thin import voxel_average
 
 __all__ = ["Skeleton", "SkeletonBranch", "skeletonize"]
@@ -369,7 +370,7 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
         lines, lined = [], []
         for i, e in ends:
             pts = branches[i].points if e == 0 else branches[i].points[::-1]
-            s = _from_start(pts)
+            s = polyline_arclength(pts)
             window = pts[(s >= near) & (s <= far)]
             if len(window) < 3 or s[-1] < far:
                 continue
@@ -385,7 +386,7 @@ def _junctions_placed(skeleton: Skeleton) -> Skeleton:
         junctions[j] = point
         for i, e in lined:
             b = branches[i] if e == 0 else _reversed(branches[i])
-            m = max(1, int(np.sum(_from_start(b.points) < near)))
+            m = max(1, int(np.sum(polyline_arclength(b.points) < near)))
             pts = b.points.copy()
             pts[:m] = point + np.outer(np.arange(m) / m, pts[m] - point)
             radius = b.radius.copy()
@@ -411,11 +412,6 @@ def _lines_meet(lines: list, graph: np.ndarray, radius: float) -> np.ndarray:
         v = V[:, np.argmax(wild)]
         lines.pop(int(np.argmax([v @ P @ v for P, _ in lines])))
     return graph
-
-
-def _from_start(pts: np.ndarray) -> np.ndarray:
-    """Arc length along a polyline from its first vertex."""
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
 
 
 def _broken_tees_mended(skeleton: Skeleton) -> Skeleton:
@@ -474,7 +470,7 @@ def _window(b: SkeletonBranch, end: int, radius: float) -> np.ndarray | None:
     """The branch's vertices between BRIDGE_WINDOW_RADII ``radius`` from its end ``end``, in order away
     from it; ``None`` if it does not reach twice the first."""
     pts = b.points if end == 0 else b.points[::-1]
-    s = _from_start(pts)
+    s = polyline_arclength(pts)
     near, far = np.multiply(BRIDGE_WINDOW_RADII, radius)
     inside = (s >= near) & (s <= far)
     return pts[inside] if s[-1] >= 2 * near and inside.sum() >= 2 else None
@@ -577,7 +573,7 @@ def _ends_beside(branches: list, reach: np.ndarray):
             if i == k or c.closed:
                 continue
             v = int(np.argmin(np.linalg.norm(c.points - end, axis=1)))
-            yield k, e, int(i), v, np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(c.points, axis=0), axis=1))])
+            yield k, e, int(i), v, polyline_arclength(c.points)
 
 
 def _turn(into_before: np.ndarray, into_after: np.ndarray) -> np.ndarray:
@@ -590,7 +586,7 @@ def _turn(into_before: np.ndarray, into_after: np.ndarray) -> np.ndarray:
 def _inward(b: SkeletonBranch, end: int, radius: float) -> np.ndarray:
     """Unit direction from the branch's end ``end`` (0 or 1) into it (see END_DIRECTION_RADII)."""
     pts = b.points if end == 0 else b.points[::-1]
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = polyline_arclength(pts)
     near, far = np.minimum(np.searchsorted(s, np.multiply(END_DIRECTION_RADII, radius)), len(pts) - 1)
     d = pts[far] - pts[near if near < far else 0]
     return d / max(float(np.linalg.norm(d)), 1e-300)
@@ -613,7 +609,7 @@ def _hairpins(branch: SkeletonBranch) -> list:
     if branch.closed:
         return []
     pts, radius = branch.points, float(np.median(branch.radius))
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = polyline_arclength(pts)
     near, far = END_DIRECTION_RADII[0] * radius, END_DIRECTION_RADII[1] * radius
     inner = np.flatnonzero((s >= far) & (s[-1] - s >= far))
     if not len(inner):
@@ -642,7 +638,7 @@ def _cut_hairpins(branch: SkeletonBranch) -> list:
     cuts = _hairpins(branch)
     if not cuts:
         return [branch]
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(branch.points, axis=0), axis=1))])
+    s = polyline_arclength(branch.points)
     keep = np.ones(len(s), bool)
     for k in cuts:
         keep &= np.abs(s - s[k]) >= END_DIRECTION_RADII[0] * float(np.median(branch.radius))

@@ -16,7 +16,7 @@ from scipy.interpolate import BSpline
 from .constants import SMOOTHING
 
 __all__ = ["constant_spline", "knots", "local_basis", "design_matrix", "coefficients_to_spline", "pspline_fit",
-           "sample_arclength", "arclength_reparametrize", "curve_length"]
+           "sample_arclength", "arclength_reparametrize", "curve_length", "polyline_arclength"]
 
 DEGREE = 3
 
@@ -153,11 +153,15 @@ def pspline_fit(u: np.ndarray, values: np.ndarray, *, n_segments: int, closed: b
     return coefficients_to_spline(coef.reshape((m,) + values.shape[1:]), n_segments, closed)
 
 
+def polyline_arclength(pts: np.ndarray) -> np.ndarray:
+    """Arc length along the polyline ``pts`` (N, d) at each of its vertices, from the first (0)."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+
+
 def _dense(spline: BSpline, a: float, b: float, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     t = np.linspace(a, b, n)
     pts = spline(t)
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    return t, pts, np.concatenate([[0.0], np.cumsum(seg)])
+    return t, pts, polyline_arclength(pts)
 
 
 def curve_length(spline: BSpline, a: float = 0.0, b: float = 1.0, n: int = 4001) -> float:

@@ -65,7 +65,7 @@ from scipy.interpolate import BSpline, make_interp_spline
 from scipy.spatial import cKDTree
 
 from ._validate import choice
-from .spine import constant_spline
+from .spine import constant_spline, polyline_arclength
 from .errors import InputError
 
 __all__ = ["SyntheticTube", "SURFACES", "CONDITIONS", "make_tube", "sample_tube", "view_direction", "constant_spline",
@@ -173,7 +173,7 @@ def _trefoil_spine(scale=1.0) -> BSpline:
 
 def _by_arclength(xyz: np.ndarray) -> BSpline:
     """Interpolating cubic through dense samples of a path, parameterised by normalised chord length."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0), axis=1))])
+    s = polyline_arclength(xyz)
     return make_interp_spline(s / s[-1], xyz, k=3)
 
 
@@ -787,7 +787,7 @@ def _tree() -> _Layout:
         return d / np.linalg.norm(d)
 
     dense = stem(np.linspace(0.0, height, 20001))
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+    arc = polyline_arclength(dense)
     cuts = [0.0, *heights, height]
     s_cut = np.interp(cuts, np.linspace(0.0, height, 20001), arc)
     r_cut = r_foot + (r_top - r_foot) * s_cut / arc[-1]  # radius linear in arc length along the whole stem
