@@ -257,3 +257,32 @@ def test_the_first_estimate_takes_the_points_past_a_thin_set_that_ends_with_scat
     taken = _assign(points, _Estimates([guess], skel), _Fittable(points, np.ones(len(points), bool)), 0)
     past = (points[:, 2] > 6.0) & (points[:, 2] < 6.0 + ASSIGN_END_RADII)
     assert np.isin(np.flatnonzero(past), taken).mean() > 0.95
+
+
+def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
+    """A tube of radius 1 from z = 0 to 8 whose thin set stops at z = 6 with its last vertices straying
+    sideways and back (a 10-million-point plant's pipe so): the first estimate hooks there, its end tangent
+    turned back.  The fit, straight on past the hook, must count as grown and take the points beyond it to
+    the tube's end -- measured along the hook, it had not grown, and the tube stopped 1.2 radii short."""
+    from canalsurf.pipeline import _Estimates, _Fittable, _first_guess, _fit_one
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    z = np.linspace(0.0, 6.0, 13)
+    axis = np.column_stack([np.zeros_like(z), np.zeros_like(z), z])
+    stray = np.array([[0.8, 0.3, 5.9], [1.0, 0.1, 5.95], [1.2, -0.7, 6.4]])
+    branch = SkeletonBranch(np.vstack([axis, stray]), np.full(16, 4.0), np.r_[np.ones(13), 0.5, 0.2, 1.3],
+                            (None, None))
+    skel = Skeleton([branch], np.empty((0, 3)), 0.5)
+    rng = np.random.default_rng(0)
+    angle, height = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 8.0, 20_000)
+    points = np.column_stack([np.cos(angle), np.sin(angle), height]) + rng.normal(0.0, 0.005, (20_000, 3))
+    guess = _first_guess(branch)
+    tangent = guess["spine"].derivative()(1.0)
+    assert tangent[2] < 0.5 * np.linalg.norm(tangent)  # the hook the test is about
+    job = {"points": points, "estimates": _Estimates([guess], skel), "fittable": _Fittable(points, np.ones(20_000, bool)),
+           "kappa": np.ones(20_000), "kind": "pipe", "refine": True, "noise": 0.005, "quantum": 0.0}
+    fit = _fit_one(0, job)
+    assert not isinstance(fit, str), fit
+    ends = fit.spine(np.array([0.0, 1.0]))
+    assert abs(ends[:, 2].max() - 8.0) < 0.1 and abs(ends[:, 2].min()) < 0.1, ends
+    assert np.abs(fit.spine(np.linspace(0.0, 1.0, 50))[:, :2]).max() < 0.02

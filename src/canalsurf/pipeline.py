@@ -1031,7 +1031,9 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     free = [e for e in (0, 1) if estimates.skel.branches[i].ends[e] is None and not estimates.guesses[i]["closed"]]
     for _ in range(MAX_GROW_ROUNDS):
         g = estimates.guesses[i]
-        tangent = g["spine"].derivative()(np.array([0.0, 1.0]))
+        # Outward along the fit, not the estimate: an estimate whose thin set strays sideways at its end
+        # hooks there, and the fit's end, on past it, would not count as grown along the hook.
+        tangent = fit.spine.derivative()(np.array([0.0, 1.0]))
         outward = tangent / np.linalg.norm(tangent, axis=1, keepdims=True) * np.array([[-1.0], [1.0]])
         if not any((fit.spine(float(e)) - g["spine"](float(e))) @ outward[e] > GROW_RADII * g["eq6"] for e in free):
             break
