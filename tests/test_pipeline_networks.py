@@ -286,3 +286,40 @@ def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     ends = fit.spine(np.array([0.0, 1.0]))
     assert abs(ends[:, 2].max() - 8.0) < 0.1 and abs(ends[:, 2].min()) < 0.1, ends
     assert np.abs(fit.spine(np.linspace(0.0, 1.0, 50))[:, :2]).max() < 0.02
+
+
+def test_a_junction_the_thin_set_made_between_two_tubes_side_by_side_is_opened_and_each_tube_is_one_branch():
+    """Two pipes side by side (radii 0.8 and 0.5, their surfaces 0.75 apart) whose thin sets met for a stretch:
+    the skeleton joins them at a junction on the thinner one's axis, from which two branches cross over to
+    the other's (a 10-million-point plant's rack so).  Each fit runs along its own tube, past that junction;
+    joined there, the one that ran past it folded and was left out, and neither tube was found whole."""
+    from canalsurf.pipeline import _fit_network
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    def line(a, b, n):
+        return np.linspace(a, b, n)
+
+    junction = np.array([9.3, 2.05, 0.0])
+    paths = [(np.vstack([line(junction, [12.0, 0.3, 0.0], 7), line([12.5, 0.0, 0.0], [19.8, 0.0, 0.0], 15)]), (0, None)),
+             (np.vstack([line(junction, [7.0, 0.3, 0.0], 6), line([6.5, 0.0, 0.0], [0.2, 0.0, 0.0], 13)]), (0, None)),
+             (line(junction, [11.7, 2.05, 0.0], 6), (0, None)),
+             (line([12.5, 2.05, 0.0], [19.8, 2.05, 0.0], 15), (None, None)),
+             (line([0.2, 2.05, 0.0], [8.0, 2.05, 0.0], 16), (None, None))]
+    radius = lambda p: np.where(p[:, 1] > 1.0, 0.5, 0.8)  # noqa: E731
+    skel = Skeleton([SkeletonBranch(p, np.full(len(p), 4.0), radius(p), ends) for p, ends in paths],
+                    junction[None], 0.5)
+    rng = np.random.default_rng(0)
+    pts = []
+    for y, r in ((0.0, 0.8), (2.05, 0.5)):
+        angle, x = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 20.0, 20_000)
+        pts.append(np.column_stack([x, y + r * np.cos(angle), r * np.sin(angle)]))
+    points = np.vstack(pts) + rng.normal(0.0, 0.005, (40_000, 3))
+    skel, fits = _fit_network(points, skel, kind="pipe", refine=True, noise=0.005, quantum=0.0,
+                              curved=np.ones(40_000, bool), kappa=np.full(40_000, 1.5))
+    assert len(skel.junctions) == 0 and all(b.ends == (None, None) for b in skel.branches)
+    for y, r in ((0.0, 0.8), (2.05, 0.5)):
+        own = [f for f in fits if abs(float(f.spine(0.5)[1]) - y) < r]
+        assert len(own) == 1, [f.spine(np.array([0.0, 1.0])).round(2).tolist() for f in fits]
+        along = own[0].spine(np.linspace(0.0, 1.0, 200))
+        assert along[:, 0].min() < 0.1 and along[:, 0].max() > 19.9
+        assert np.abs(along[:, 1:] - [y, 0.0]).max() < 0.02

@@ -12,7 +12,8 @@ import pytest
 
 from canalsurf.errors import ReconstructionError
 from canalsurf.skeleton import (HAIRPIN_LEGS_RADII, MAX_JOIN_TURN, MIN_BRANCH_POINTS, SEPARATE_RADII, SPUR_RADII,
-                                Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches)
+                                Skeleton, SkeletonBranch, skeletonize, with_ends_joined, with_ends_opened,
+                                without_branches)
 
 SEED = 3
 N = 2000
@@ -801,3 +802,19 @@ def test_a_side_line_alone_moves_a_junction_along_its_run_only_within_the_larges
     # within the light pull to the graph's junction
     np.testing.assert_allclose(out.junctions[0], placed, atol=0.005)
     assert all(np.array_equal(b.points[-1 if b.ends[1] == 0 else 0], out.junctions[0]) for b in out.branches)
+
+
+def test_with_ends_opened_opens_a_junction_left_with_one_end_and_drops_one_left_with_none():
+    """Of a star of three branches at junction 0 and a pair at junction 1, two ends of the star are opened:
+    its third end opens too and junction 0 goes; junction 1 is renumbered 0, and no branch moves."""
+    def branch(a, b, ends):
+        pts = np.linspace(a, b, 5)
+        return SkeletonBranch(pts, np.ones(5), np.full(5, 0.1), ends)
+
+    branches = [branch([0, 0, 0], [1, 0, 0], (0, None)), branch([0, 0, 0], [0, 1, 0], (0, None)),
+                branch([0, 0, 0], [0, 0, 1], (0, 1)), branch([0, 0, 2], [0, 0, 1], (None, 1))]
+    skel = Skeleton(branches, np.array([[0.0, 0, 0], [0, 0, 1]]), 0.25)
+    out = with_ends_opened(skel, [(0, 0), (1, 0)])
+    assert [b.ends for b in out.branches] == [(None, None), (None, None), (None, 0), (None, 0)]
+    np.testing.assert_array_equal(out.junctions, [[0.0, 0.0, 1.0]])
+    assert all(b.points is a.points for a, b in zip(branches, out.branches))

@@ -31,7 +31,8 @@ from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
-from .skeleton import MIN_BRANCH_POINTS, Skeleton, SkeletonBranch, skeletonize, with_ends_joined, without_branches
+from .skeleton import (MIN_BRANCH_POINTS, Skeleton, SkeletonBranch, skeletonize, with_ends_joined, with_ends_opened,
+                       without_branches)
 from .spine import (arclength_reparametrize, constant_spline, curvature, curve_length, polyline_arclength, pspline_fit,
                     reversed_spline, sample_arclength)
 
@@ -1382,6 +1383,33 @@ def _pieces_of_one_tube(fits: list, skel: Skeleton) -> list:
     return pairs
 
 
+def _unmet_ends(fits: list, skel: Skeleton) -> list:
+    """``(branch, end)`` of the fitted branches whose end does not meet its junction: the junction lies
+    behind the end by more than END_TRIM_RADII of the branch's radius (the fit runs on past it), or
+    aside of the line continuing the end by more than the branch's radius and the largest there.
+
+    Two tubes that run side by side, close together, can share a thin set for a stretch, which the
+    skeleton reads as a junction between them: each tube's fit, to its own points, runs past it.
+    (Joined there, such a fit folds and is left out.)
+    """
+    largest = np.zeros(len(skel.junctions))
+    for fit, branch in zip(fits, skel.branches):
+        for j in branch.ends:
+            if fit and j is not None:
+                largest[j] = max(largest[j], fit.eq6)
+    unmet = []
+    for i, (fit, branch) in enumerate(zip(fits, skel.branches)):
+        for e, j in enumerate(branch.ends):
+            if not fit or j is None:
+                continue
+            p, d = _end_frame(fit.spine, e)
+            v = skel.junctions[j] - p
+            ahead = float(v @ d)
+            if ahead < -END_TRIM_RADII * fit.eq6 or np.linalg.norm(v - ahead * d) > fit.eq6 + largest[j]:
+                unmet.append((i, e))
+    return unmet
+
+
 def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skeleton, list]:
     """The skeleton and fits with each two pieces of one tube (:func:`_pieces_of_one_tube`) joined and
     fitted as one branch -- where that fit is a tube; else both pieces stay as they were."""
@@ -1428,7 +1456,16 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                 reason, fit = fit, False
             fits[i] = fit
         if refine:
-            skel, fits = _joined_pieces(fits, skel, job, client)
+            unmet = _unmet_ends(fits, skel)
+            if unmet:
+                log.info("%d branch ends do not meet their junction: opened", len(unmet))
+                skel = with_ends_opened(skel, unmet)
+            # A tube in three pieces or more is joined a pair at a time.
+            while True:
+                before = len(fits)
+                skel, fits = _joined_pieces(fits, skel, job, client)
+                if len(fits) == before:
+                    break
         inside = _inside_others(fits, skel)
         rest = [False if k in inside else f for k, f in enumerate(fits)]
         last = round_ == MAX_FIT_ROUNDS - 1  # a part cut in the last round could not be fitted

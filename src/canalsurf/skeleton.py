@@ -747,10 +747,30 @@ def without_branches(skeleton: Skeleton, drop) -> tuple[Skeleton, list]:
             live = [x for k, x in enumerate(live) if k not in (n, m)] + [(joined, None)]
         else:
             break
-    used = sorted({j for b, _ in live for j in b.ends if j is not None})
+    return _renumbered([b for b, _ in live], skeleton), [i for _, i in live]
+
+
+def with_ends_opened(skeleton: Skeleton, opened) -> Skeleton:
+    """The skeleton with the branch ends ``opened`` (``(branch, end)`` pairs) made open ends; a junction
+    left with one branch end opens it too, and one left with none disappears.  The branches keep their
+    order and their points."""
+    ends = [list(b.ends) for b in skeleton.branches]
+    for i, e in opened:
+        ends[i][e] = None
+    count = np.bincount([j for es in ends for j in es if j is not None], minlength=len(skeleton.junctions))
+    branches = [SkeletonBranch(b.points, b.weights, b.radius,
+                               tuple(None if j is None or count[j] < 2 else j for j in es), b.closed)
+                for b, es in zip(skeleton.branches, ends)]
+    return _renumbered(branches, skeleton)
+
+
+def _renumbered(branches: list, skeleton: Skeleton) -> Skeleton:
+    """A skeleton of ``branches`` (whose ends index ``skeleton``'s junctions) with only the junctions
+    they end at, numbered in order."""
+    used = sorted({j for b in branches for j in b.ends if j is not None})
     renumber = {j: n for n, j in enumerate(used)}
     branches = [SkeletonBranch(b.points, b.weights, b.radius,
                                tuple(None if j is None else renumber[j] for j in b.ends), b.closed)
-                for b, _ in live]
+                for b in branches]
     junctions = skeleton.junctions[used] if used else np.empty((0, 3))
-    return Skeleton(branches, junctions, skeleton.link), [i for _, i in live]
+    return Skeleton(branches, junctions, skeleton.link)
