@@ -806,7 +806,8 @@ def test_a_side_line_alone_moves_a_junction_along_its_run_only_within_the_larges
 
 def test_with_ends_opened_opens_a_junction_left_with_one_end_and_drops_one_left_with_none():
     """Of a star of three branches at junction 0 and a pair at junction 1, two ends of the star are opened:
-    its third end opens too and junction 0 goes; junction 1 is renumbered 0, and no branch moves."""
+    its third end opens too and junction 0 goes; junction 1 is renumbered 0, and no branch moves.  With one
+    end of the pair opened too, no junction is left."""
     def branch(a, b, ends):
         pts = np.linspace(a, b, 5)
         return SkeletonBranch(pts, np.ones(5), np.full(5, 0.1), ends)
@@ -818,3 +819,5 @@ def test_with_ends_opened_opens_a_junction_left_with_one_end_and_drops_one_left_
     assert [b.ends for b in out.branches] == [(None, None), (None, None), (None, 0), (None, 0)]
     np.testing.assert_array_equal(out.junctions, [[0.0, 0.0, 1.0]])
     assert all(b.points is a.points for a, b in zip(branches, out.branches))
+    out = with_ends_opened(skel, [(0, 0), (1, 0), (2, 1)])
+    assert all(b.ends == (None, None) for b in out.branches) and out.junctions.shape == (0, 3)
