@@ -1277,6 +1277,16 @@ def _own_part(fits: list, branch: SkeletonBranch, radius: float) -> SkeletonBran
     return SkeletonBranch(branch.points[a:b], branch.weights[a:b], branch.radius[a:b], branch.ends, False)
 
 
+def _largest_at_junctions(fits: list, skel: Skeleton) -> np.ndarray:
+    """The largest Eq. (6) radius of the fitted branches (falsy entries skipped) ending at each junction."""
+    largest = np.zeros(len(skel.junctions))
+    for fit, branch in zip(fits, skel.branches):
+        for j in branch.ends:
+            if fit and j is not None:
+                largest[j] = max(largest[j], fit.eq6)
+    return largest
+
+
 def _inside_others(fits: list, skel: Skeleton) -> list:
     """Indices of the fitted branches whose spine runs inside other fitted tubes (see MAX_INSIDE_OTHERS).
 
@@ -1291,11 +1301,7 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
     pts = np.concatenate([fits[i].spine(t) for i in live])
     r = np.concatenate([fits[i].radius(t) for i in live])
     owner = np.repeat(np.arange(len(live)), INSIDE_SAMPLES)
-    reach = np.zeros(len(skel.junctions))
-    for i in live:
-        for j in skel.branches[i].ends:
-            if j is not None:
-                reach[j] = max(reach[j], JUNCTION_EXCLUSION_RADII * fits[i].eq6)
+    reach = JUNCTION_EXCLUSION_RADII * _largest_at_junctions(fits, skel)
     away = np.ones(len(pts), bool)
     for n, i in enumerate(live):
         for j in skel.branches[i].ends:
@@ -1392,11 +1398,7 @@ def _unmet_ends(fits: list, skel: Skeleton) -> list:
     skeleton reads as a junction between them: each tube's fit, to its own points, runs past it.
     (Joined there, such a fit folds and is left out.)
     """
-    largest = np.zeros(len(skel.junctions))
-    for fit, branch in zip(fits, skel.branches):
-        for j in branch.ends:
-            if fit and j is not None:
-                largest[j] = max(largest[j], fit.eq6)
+    largest = _largest_at_junctions(fits, skel)
     unmet = []
     for i, (fit, branch) in enumerate(zip(fits, skel.branches)):
         for e, j in enumerate(branch.ends):
