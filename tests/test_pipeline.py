@@ -458,16 +458,20 @@ def _piece(a, b, radius: float = 1.0):
 @pytest.mark.parametrize(("second", "radius", "ends", "paired_end"), [
     (((16.0, 0, 0), (8.0, 0, 0)), 1.0, (None, None), 1),        # overlapping, the other way round
     (((11.5, 0, 0), (20.0, 0, 0)), 1.1, (None, None), 0),       # a gap of 1.5 radii, radius 10 % larger
-    (((13.0, 0, 0), (20.0, 0, 0)), 1.0, (None, None), None),    # a gap of 3 radii: an occlusion's
+    (((13.0, 0, 0), (20.0, 0, 0)), 1.0, (None, None), 0),       # a gap of 3 radii, in line
+    (((29.0, 0, 0), (40.0, 0, 0)), 1.0, (None, None), 0),       # a gap of 19 radii, in line
+    (((31.0, 0, 0), (40.0, 0, 0)), 1.0, (None, None), None),    # a gap of 21 radii
+    (((13.0, 1.5, 0), (20.0, 1.5, 0)), 1.0, (None, None), None),  # in line but 1.5 radii aside
     (((8.0, 0, 0), (16.0, 0, 0)), 1.3, (None, None), None),     # overlapping, but 30 % larger
     (((8.0, 0, 0), (16.0, 0, 0)), 1.0, (0, None), None),        # its end at a junction
     (((8.0, 3.0, 0), (16.0, 3.0, 0)), 1.0, (None, None), None),  # a rack neighbour beside it
     (((9.5, -5.0, 0), (9.5, 0.0, 0)), 1.0, (None, None), None),  # a side branch ending in it
 ])
 def test_two_fitted_pieces_of_one_tube_are_paired(second, radius, ends, paired_end):
-    """A pipe from 0 to 10 and a second fitted piece: they are one tube's pieces only when each end
-    lies inside the other tube (continued a radius past its end), they run on one from the other, and
-    their radii are within 15 %."""
+    """A pipe from 0 to 10 and a second fitted piece: they may be one tube's pieces only when they run on
+    one from the other, their radii are within 15 %, and each end lies inside the other tube (continued
+    a radius past its end) or ahead of it in line, within a radius aside and 20 radii away.  (Whether
+    points fill a gap between them is the joined fit's test.)"""
     from types import SimpleNamespace
 
     from canalsurf.pipeline import _pieces_of_one_tube
@@ -497,6 +501,48 @@ def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
     ends = np.sort(fit.spine(np.array([0.0, 1.0]))[:, 0])
     assert ends[0] < 0.3 and ends[1] > 29.7
     assert np.abs(fit.spine(np.linspace(0.0, 1.0, 200))[:, 1:]).max() < 0.02
+
+
+@pytest.mark.parametrize(("fitted", "spans"), [((0.0, 20.0), True), ((-3.0, 20.0), True), ((0.0, 17.5), False)])
+def test_a_joined_fit_must_reach_both_pieces_far_ends(fitted, spans):
+    """Pieces from 0 to 8 and from 12 to 20: a joined fit from 0 to 20 spans them, as does one grown past
+    an end; one that stopped 2.5 radii short of the second's far end (at a gap) puts one piece in place
+    of both."""
+    from canalsurf.pipeline import _spans
+
+    fit = _piece((fitted[0], 0, 0), (fitted[1], 0, 0))
+    fit.eq6 = 1.0
+    assert _spans(fit, np.array([0.0, 0, 0]), np.array([20.0, 0, 0])) is spans
+
+
+@pytest.mark.parametrize("occluded", [False, True])
+def test_pieces_of_a_pipe_far_apart_are_joined_where_points_fill_the_gap(occluded):
+    """A pipe of radius 1 over x in [0, 60] whose thin set holds only its first and last 8 radii (the rest
+    taken by a branch across it that was then dropped): the pieces, grown towards each other as far as
+    growing goes, are still more than 10 radii apart, and are joined into one branch end to end.  Where
+    the scan has no points between x 22 and 38 (an occlusion), they stay two: two pipes in line are not
+    one."""
+    from canalsurf.pipeline import _fit_network
+    from canalsurf.skeleton import Skeleton
+
+    rng = np.random.default_rng(5)
+    n = 36_000
+    x, angle = rng.uniform(0.0, 60.0, n), rng.uniform(0.0, 2 * np.pi, n)
+    if occluded:
+        x, angle = x[(x < 22.0) | (x > 38.0)], angle[(x < 22.0) | (x > 38.0)]
+    r = 1.0 + rng.normal(scale=0.01, size=len(x))
+    points = np.c_[x, r * np.cos(angle), r * np.sin(angle)]
+    skel = Skeleton([_axis_branch(0.5, 8.0), _axis_branch(59.5, 52.0)], np.empty((0, 3)), 0.2)
+    skel, fits = _fit_network(points, skel, kind="auto", refine=True, noise=0.01, quantum=0.0,
+                              curved=np.ones(len(x), bool), kappa=np.ones(len(x)))
+    spans = sorted(tuple(np.sort(f.spine(np.array([0.0, 1.0]))[:, 0])) for f in fits)
+    if occluded:
+        assert len(fits) == 2 and spans[0][0] < 0.3 and 21.0 < spans[0][1] < 22.3
+        assert 37.7 < spans[1][0] < 39.0 and spans[1][1] > 59.7
+    else:
+        assert len(fits) == 1 and spans[0][0] < 0.3 and spans[0][1] > 59.7
+        assert fits[0].kind == "pipe" and abs(float(fits[0].radius(0.5)) - 1.0) < 0.01
+        assert np.abs(fits[0].spine(np.linspace(0.0, 1.0, 600))[:, 1:]).max() < 0.02
 
 
 def test_a_stray_thin_point_at_an_open_end_does_not_stop_the_fit_short():

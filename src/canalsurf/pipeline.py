@@ -1335,11 +1335,15 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
 
 
 #: Two fitted branches are pieces of one tube -- the thin set broke along it, or two passes each found
-#: a part -- when the open end of each lies inside the other's tube (continued straight PIECE_GAP_RADII
-#: radii past its end), they go on one from the other (their ends point against each other within
-#: MAX_PIECE_TURN degrees), and their radii differ by no more than MAX_GAP_RADIUS_CHANGE.  Left apart,
-#: the one more inside the other is dropped (the tube is cut short) or both stay (written twice).
+#: a part -- when their open ends point against each other (within MAX_PIECE_TURN degrees), their radii
+#: differ by no more than MAX_GAP_RADIUS_CHANGE, and either the end of each lies inside the other's
+#: tube (continued straight PIECE_GAP_RADII radii past its end) or each end lies ahead of the other on
+#: the line continuing it, no farther aside than the radius, at most MAX_PIECE_GAP_RADII radii away.
+#: Left apart, the one more inside the other is dropped (the tube is cut short), both stay (written
+#: twice), or the stretch between is missing: a coarse pass's branch across the tube there, to its
+#: neighbours, kept that stretch from the finer pass's thin set, and was dropped as no tube.
 PIECE_GAP_RADII = 1.0
+MAX_PIECE_GAP_RADII = 20.0
 MAX_PIECE_TURN = 30.0
 #: Spine samples per radius of that test.
 PIECE_SAMPLES_PER_RADIUS = 2
@@ -1348,8 +1352,9 @@ JOINED_RMS_RATIO = 1.25
 
 
 def _pieces_of_one_tube(fits: list, skel: Skeleton) -> list:
-    """Pairs ``((a, ea), (b, eb))`` of open ends of fitted branches that are one tube's two pieces
-    (see PIECE_GAP_RADII), each branch in one pair at most, the pairs whose ends are closest first."""
+    """Pairs ``((a, ea), (b, eb))`` of open ends of fitted branches that may be one tube's two pieces
+    (see PIECE_GAP_RADII), each branch in one pair at most: those inside each other first, then those
+    in line, the pairs whose ends are closest first in each."""
     pts, radius, ends = [], {}, {}
     for i, f in enumerate(fits):
         if not f or f.closed:
@@ -1367,22 +1372,28 @@ def _pieces_of_one_tube(fits: list, skel: Skeleton) -> list:
     owner = np.concatenate([np.full(len(x), i) for i, x in pts])
     pts = np.vstack([x for _, x in pts])
     keys = list(ends)
-    # the other branches whose tube (continued past its open ends) holds each open end
-    inside = {}
-    for key, near in zip(keys, cKDTree(pts).query_ball_point([ends[k][0] for k in keys], max(radius.values()))):
+    own = np.array([a for a, _ in keys])
+    # [m, n]: the tube of end n's branch (continued past its open ends) holds end m
+    inside = np.zeros((len(keys), len(keys)), bool)
+    for m, near in enumerate(cKDTree(pts).query_ball_point([ends[k][0] for k in keys], max(radius.values()))):
         near = np.asarray(near, int)
-        close = np.linalg.norm(pts[near] - ends[key][0], axis=1) < np.array([radius[o] for o in owner[near]])
-        inside[key] = set(owner[near[close]].tolist()) - {key[0]}
-    turn = -np.cos(np.radians(MAX_PIECE_TURN))
-    candidates = []
-    for a, ea in keys:
-        for b, eb in keys:
-            if (a < b and b in inside[a, ea] and a in inside[b, eb]
-                    and ends[a, ea][1] @ ends[b, eb][1] <= turn
-                    and abs(radius[a] - radius[b]) <= MAX_GAP_RADIUS_CHANGE * max(radius[a], radius[b])):
-                candidates.append((float(np.linalg.norm(ends[a, ea][0] - ends[b, eb][0])), (a, ea), (b, eb)))
+        close = np.linalg.norm(pts[near] - ends[keys[m]][0], axis=1) < np.array([radius[o] for o in owner[near]])
+        inside[m] = np.isin(own, owner[near[close]])
+    p, d = (np.array([ends[k][n] for k in keys]) for n in (0, 1))
+    r = np.array([radius[a] for a in own])
+    v = p[None] - p[:, None]  # [m, n]: from end m to end n
+    ahead = np.einsum("mnk,mk->mn", v, d)
+    aside = np.linalg.norm(v - ahead[..., None] * d[:, None], axis=2)
+    wider = np.maximum(r[:, None], r[None])
+    in_line = (ahead > 0) & (aside <= wider) & (np.linalg.norm(v, axis=2) <= MAX_PIECE_GAP_RADII * wider)
+    pair = ((own[:, None] < own[None]) & (d @ d.T <= -np.cos(np.radians(MAX_PIECE_TURN)))
+            & (np.abs(r[:, None] - r[None]) <= MAX_GAP_RADIUS_CHANGE * wider)
+            & ((in_line & in_line.T) | (inside & inside.T)))
+    # Pieces that overlap or nearly meet before pieces a gap apart: those are surer.
+    candidates = [(not (inside[m, n] and inside[n, m]), float(np.linalg.norm(v[m, n])), keys[m], keys[n])
+                  for m, n in np.argwhere(pair)]
     pairs, taken = [], set()
-    for _, (a, ea), (b, eb) in sorted(candidates):
+    for *_, (a, ea), (b, eb) in sorted(candidates):
         if not {a, b} & taken:
             taken |= {a, b}
             pairs.append(((a, ea), (b, eb)))
@@ -1412,25 +1423,45 @@ def _unmet_ends(fits: list, skel: Skeleton) -> list:
     return unmet
 
 
+def _spans(fit: _BranchFit, first: np.ndarray, last: np.ndarray) -> bool:
+    """Whether a fit of two joined pieces reaches the far ends ``first`` and ``last`` of both (passes
+    within END_TRIM_RADII radii of them): where the points between the pieces are missing (taken by a
+    branch across the tube there), the fit stops at that gap, and would put one piece in place of both."""
+    spine = sample_arclength(fit.spine, max(INSIDE_SAMPLES, int(curve_length(fit.spine) / fit.eq6)))[1]
+    return bool(cKDTree(spine).query(np.array([first, last]))[0].max() <= END_TRIM_RADII * fit.eq6)
+
+
 def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skeleton, list]:
     """The skeleton and fits with each two pieces of one tube (:func:`_pieces_of_one_tube`) joined and
     fitted as one branch -- where that fit is a tube; else both pieces stay as they were."""
     pairs = _pieces_of_one_tube(fits, skel)
     if not pairs:
         return skel, fits
-    joined, origin = with_ends_joined(skel, pairs)
+    ends = {(a, ea): _end_frame(fits[a].spine, ea) for (a, ea), _ in pairs}
+    joined, origin = with_ends_joined(skel, pairs, ends)
     todo = [k for k, o in enumerate(origin) if o is None]
     job = {**job, "estimates": _Estimates([_first_guess(b) for b in joined.branches], joined)}
     # A joined branch takes the place of the first of its pair, so they come in that order.
     by_first = dict(zip(sorted(a for (a, _), _ in pairs), _fit_all(todo, job, client)))
-    # Kept where the one fit is a tube and fits its points about as closely as the pieces did: a piece
-    # of a canal whose radius changes fast (a trunk's flare) may not go on into the other as one spline.
-    good = [((a, ea), (b, eb)) for (a, ea), (b, eb) in pairs if not isinstance(by_first[a], str)
-            and _quality(by_first[a])["rms"] <= JOINED_RMS_RATIO * max(_quality(fits[a])["rms"], _quality(fits[b])["rms"])]
+    # Kept where the one fit is a tube, reaches the far ends of both, and fits its points about as closely
+    # as the pieces did: a piece of a canal whose radius changes fast (a trunk's flare) may not go on into
+    # the other as one spline.  Pieces a gap apart, more than the inside test allows, need points all
+    # along it: two tubes in line, a stretch apart, are not one.
+    def kept(a, ea, b, eb):
+        fit = by_first[a]
+        if isinstance(fit, str) or not _spans(fit, fits[a].spine(1.0 - ea), fits[b].spine(1.0 - eb)):
+            return False
+        if _quality(fit)["rms"] > JOINED_RMS_RATIO * max(_quality(fits[a])["rms"], _quality(fits[b])["rms"]):
+            return False
+        p, d = ends[a, ea]
+        gap = float((fits[b].spine(float(eb)) - p) @ d)
+        return gap <= (PIECE_GAP_RADII + 1) * fit.eq6 or not _gapped(fit, fit.eq6, False)
+
+    good = [((a, ea), (b, eb)) for (a, ea), (b, eb) in pairs if kept(a, ea, b, eb)]
     log.info("%d of %d pairs of branches are pieces of one tube: joined", len(good), len(pairs))
     if not good:
         return skel, fits
-    joined, origin = with_ends_joined(skel, good) if len(good) < len(pairs) else (joined, origin)
+    joined, origin = with_ends_joined(skel, good, ends) if len(good) < len(pairs) else (joined, origin)
     firsts = iter(sorted(a for (a, _), _ in good))
     return joined, [by_first[next(firsts)] if o is None else fits[o] for o in origin]
 

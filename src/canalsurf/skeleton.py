@@ -649,13 +649,16 @@ def _cut_hairpins(branch: SkeletonBranch) -> list:
             for p in pieces if keep[p[0]] and len(p) >= 2]
 
 
-def with_ends_joined(skeleton: Skeleton, pairs) -> tuple[Skeleton, list]:
+def with_ends_joined(skeleton: Skeleton, pairs, ends: dict | None = None) -> tuple[Skeleton, list]:
     """The skeleton with each pair ``((a, ea), (b, eb))`` of open ends joined: branch ``a`` goes on from
     its end ``ea`` into branch ``b`` at its end ``eb``, as one branch in ``a``'s place.
 
     For the two pieces of one tube: where the thin set broke along it, or two passes each found a part
     of it.  The vertices of ``b`` behind ``a``'s end (where the pieces overlap) are left out, so that
     the joined polyline does not double back.  No branch may be in more than one pair.
+
+    ``ends`` may give, for ``(a, ea)``, the point and outward direction of that end to measure "behind"
+    from -- a fitted spine's, surer than the thin set's own where it hooks at its end.
 
     Returns
     -------
@@ -673,7 +676,8 @@ def with_ends_joined(skeleton: Skeleton, pairs) -> tuple[Skeleton, list]:
         if first.ends[1] is not None or second.ends[0] is not None:
             raise ValueError(f"branches {a} and {b}: only open ends can be joined")
         radius = max(float(np.median(first.radius)), float(np.median(second.radius)))
-        ahead = (second.points - first.points[-1]) @ -_inward(first, 1, radius) >= 0
+        end, out = (ends or {}).get((a, ea)) or (first.points[-1], -_inward(first, 1, radius))
+        ahead = (second.points - end) @ out >= 0
         second = SkeletonBranch(second.points[ahead], second.weights[ahead], second.radius[ahead], second.ends)
         joined[a] = _joined(first, second) if ahead.any() else SkeletonBranch(
             first.points, first.weights, first.radius, (first.ends[0], second.ends[1]))
