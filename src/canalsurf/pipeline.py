@@ -1438,7 +1438,8 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skele
     if not pairs:
         return skel, fits
     ends = {(a, ea): _end_frame(fits[a].spine, ea) for (a, ea), _ in pairs}
-    joined, origin = with_ends_joined(skel, pairs, ends)
+    outward = {key: d for key, (_, d) in ends.items()}
+    joined, origin = with_ends_joined(skel, pairs, outward)
     todo = [k for k, o in enumerate(origin) if o is None]
     job = {**job, "estimates": _Estimates([_first_guess(b) for b in joined.branches], joined)}
     # A joined branch takes the place of the first of its pair, so they come in that order.
@@ -1461,7 +1462,7 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skele
     log.info("%d of %d pairs of branches are pieces of one tube: joined", len(good), len(pairs))
     if not good:
         return skel, fits
-    joined, origin = with_ends_joined(skel, good, ends) if len(good) < len(pairs) else (joined, origin)
+    joined, origin = with_ends_joined(skel, good, outward) if len(good) < len(pairs) else (joined, origin)
     firsts = iter(sorted(a for (a, _), _ in good))
     return joined, [by_first[next(firsts)] if o is None else fits[o] for o in origin]
 

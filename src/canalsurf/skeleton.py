@@ -657,8 +657,9 @@ def with_ends_joined(skeleton: Skeleton, pairs, ends: dict | None = None) -> tup
     of it.  The vertices of ``b`` behind ``a``'s end (where the pieces overlap) are left out, so that
     the joined polyline does not double back.  No branch may be in more than one pair.
 
-    ``ends`` may give, for ``(a, ea)``, the point and outward direction of that end to measure "behind"
-    from -- a fitted spine's, surer than the thin set's own where it hooks at its end.
+    ``ends`` may give, for ``(a, ea)``, the outward direction of that end to measure "behind" along
+    (from its last vertex) -- a fitted spine's, surer than the thin set's own where it hooks at its end.
+    (Not the fitted end's point: a fit grown far past its thin set would leave out the vertices between.)
 
     Returns
     -------
@@ -676,8 +677,9 @@ def with_ends_joined(skeleton: Skeleton, pairs, ends: dict | None = None) -> tup
         if first.ends[1] is not None or second.ends[0] is not None:
             raise ValueError(f"branches {a} and {b}: only open ends can be joined")
         radius = max(float(np.median(first.radius)), float(np.median(second.radius)))
-        end, out = (ends or {}).get((a, ea)) or (first.points[-1], -_inward(first, 1, radius))
-        ahead = (second.points - end) @ out >= 0
+        out = (ends or {}).get((a, ea))
+        out = -_inward(first, 1, radius) if out is None else out
+        ahead = (second.points - first.points[-1]) @ out >= 0
         second = SkeletonBranch(second.points[ahead], second.weights[ahead], second.radius[ahead], second.ends)
         joined[a] = _joined(first, second) if ahead.any() else SkeletonBranch(
             first.points, first.weights, first.radius, (first.ends[0], second.ends[1]))
