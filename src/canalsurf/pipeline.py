@@ -393,8 +393,14 @@ def _explained_share(run: _Pass) -> float:
     return float(_explained(run.scan.pts[run.curved], run).mean()) if len(run.curved) else 0.0
 
 
-def _explained(points: np.ndarray, run: _Pass) -> np.ndarray:
-    """Which ``points`` lie in or on a tube of the pass's skeleton (within EXPLAINED_RADII of its radius)."""
+def _explained(points: np.ndarray, run: _Pass, *, on_surface: bool = False) -> np.ndarray:
+    """Which ``points`` lie in or on a tube of the pass's skeleton (within EXPLAINED_RADII of its radius);
+    with ``on_surface``, only those on its surface (as far from its spine as EXPLAINED_RADII - 1 of its
+    radius).
+
+    What a pass hands on to a finer one is what is not on a surface it found: at a coarse scale a rack of
+    thin pipes can shrink to one fat branch across them, which is no tube but holds their points inside.
+    """
     try:
         skel = skeletonize(run.thin, run.r_i, spacing=C.ORDER_VOXEL_PER_H * run.p["H"])
     except ReconstructionError:
@@ -402,12 +408,15 @@ def _explained(points: np.ndarray, run: _Pass) -> np.ndarray:
     nodes = np.concatenate([b.points for b in skel.branches])
     node_r = np.concatenate([b.radius for b in skel.branches])
     d, i = cKDTree(nodes).query(points, workers=-1)
+    if on_surface:
+        return np.abs(d - node_r[i]) < (EXPLAINED_RADII - 1) * node_r[i]
     return d < EXPLAINED_RADII * node_r[i]
 
 
 def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neighbours: str, quantum: float,
                   timer: _Timer) -> list:
-    """The first pass, and further passes of the paper's stages on the points no earlier pass explained.
+    """The first pass, and further passes of the paper's stages on the points that lie on no surface an
+    earlier pass found.
 
     One scale cannot serve a scene of tubes of very different radii: the subset and the parameters
     (R, delta, H) follow the first radius estimate r0, the median over the scene, and a tube a few
@@ -426,11 +435,11 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         with timer("normals"):
             sample = scan.draw[:EXPLAINED_SAMPLE]
             sample = sample[left[sample]]
-            unexplained = int((~_explained(scan.all_pts[sample], run)).sum())
+            unexplained = int((~_explained(scan.all_pts[sample], run, on_surface=True)).sum())
             estimate = unexplained * len(left) / min(EXPLAINED_SAMPLE, len(left))
             if estimate < least / 2:
                 break
-            left[left] = ~_explained(scan.all_pts[left], run)
+            left[left] = ~_explained(scan.all_pts[left], run, on_surface=True)
         if left.sum() < least:
             break  # too little left
         pool = np.flatnonzero(left)
