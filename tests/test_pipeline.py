@@ -167,7 +167,6 @@ def test_a_pass_that_explains_little_of_its_subset_runs_again_denser(monkeypatch
     assert sizes == [5_000]
 
 
-
 def test_what_a_pass_hands_on_is_what_lies_on_no_surface_it_found():
     """A coarse pass that shrank a rack of thin pipes to one fat branch across them: the thin pipe's points
     inside the fat branch's radius are explained by it, but lie on no surface it found, so a finer pass
@@ -184,6 +183,7 @@ def test_what_a_pass_hands_on_is_what_lies_on_no_surface_it_found():
     thin = np.concatenate([ring * [1, 0.5, 0.5] + [t, 0.5, 0] for t in (5, 10, 15)])
     assert _explained(fat, run).all() and _explained(fat, run, on_surface=True).all()
     assert _explained(thin, run).all() and not _explained(thin, run, on_surface=True).any()
+
 
 def _fit_along(points, ends):
     """A pipe fit of radius 1 along the polyline ``points`` (interpolated), ending at junctions ``ends``."""
