@@ -694,6 +694,34 @@ def test_a_side_branch_that_stops_short_of_the_run_meets_it(start, direction, me
     _assert_mended_at_origin(_broken_tees_mended(Skeleton([run, side], np.empty((0, 3)), 0.1)), mended, run, side)
 
 
+def test_tees_mended_after_a_drop_name_the_branches_left_unchanged():
+    """The thin set split a tee's junction in two: the run's halves meet at the origin, the side branch
+    1.2 above it, and a piece that is no tube links the two (with a spur at the upper one).  Dropped,
+    the run's halves join and the side is left open inside the run; mended, the three meet at the
+    origin again.  ``origin`` names the one branch left unchanged, a pipe apart from the tee."""
+    from canalsurf.skeleton import with_tees_mended
+
+    apart = _polyline((-8.0, 0.0, 6.0), (8.0, 0.0, 6.0), radius=0.5)
+    left = _polyline((-8.0, 0.0, 0.0), (0.0, 0.0, 0.0), radius=0.8, ends=(None, 0))
+    right = _polyline((0.0, 0.0, 0.0), (8.0, 0.0, 0.0), radius=0.8, ends=(0, None))
+    link = _polyline((0.0, 0.0, 0.0), (0.0, 1.2, 0.0), radius=0.8, ends=(0, 1))
+    spur = _polyline((0.0, 1.2, 0.0), (0.6, 1.4, 0.0), radius=0.5, ends=(1, None))
+    side = _polyline((0.0, 1.2, 0.0), (0.0, 6.2, 0.0), radius=0.5, ends=(1, None))
+    skel = Skeleton([apart, left, right, link, spur, side], np.array([[0.0, 0.0, 0.0], [0.0, 1.2, 0.0]]), 0.1)
+    dropped, origin = without_branches(skel, [3, 4])
+    assert len(dropped.branches) == 3 and dropped.junctions.shape == (0, 3)
+    out, unchanged = with_tees_mended(dropped)
+    assert len(out.branches) == 4
+    assert [None if u is None else origin[u] for u in unchanged].count(0) == 1
+    kept = unchanged.index(origin.index(0))
+    assert out.branches[kept] is dropped.branches[origin.index(0)]
+    assert [u for n, u in enumerate(unchanged) if n != kept] == [None, None, None]
+    _assert_mended_at_origin(Skeleton([b for n, b in enumerate(out.branches) if n != kept], out.junctions, 0.1),
+                             True, left, right, side)
+    same, unchanged = with_tees_mended(out)
+    assert unchanged == [0, 1, 2, 3]
+
+
 # --------------------------------------------------------------------------------------------------
 # false junctions between tubes side by side
 

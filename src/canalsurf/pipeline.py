@@ -32,7 +32,7 @@ from .radius import curvature_radius, plausible_radius, prefer_canal, principal_
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
 from .skeleton import (MIN_BRANCH_POINTS, Skeleton, SkeletonBranch, skeletonize, with_ends_joined, with_ends_opened,
-                       without_branches)
+                       with_tees_mended, without_branches)
 from .spine import (arclength_reparametrize, constant_spline, curvature, curve_length, polyline_arclength, pspline_fit,
                     reversed_spline, sample_arclength)
 
@@ -1530,6 +1530,8 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                                       " — check the input is a scan of pipes or canals")
         log.info("%d of %d branches are no tube (left out): %s", len(drop), len(fits), reason)
         skel, origin = without_branches(skel, drop)
+        skel, unchanged = with_tees_mended(skel)
+        origin = [None if u is None else origin[u] for u in unchanged]
         fits = [None if o is None else fits[o] for o in origin]
         cut = {n for n, o in enumerate(origin) if o in cut}
     else:

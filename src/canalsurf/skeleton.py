@@ -431,6 +431,25 @@ def _broken_tees_mended(skeleton: Skeleton) -> Skeleton:
     return Skeleton(branches, junctions, skeleton.link)
 
 
+def with_tees_mended(skeleton: Skeleton) -> tuple[Skeleton, list]:
+    """The skeleton with its broken tees mended (see :func:`_broken_tees_mended`).
+
+    Dropping a branch can break a tee: where the thin set split a tee's junction in two, linked by a
+    piece that is no tube, the side branch is left with an open end inside its run once that piece is
+    dropped (:func:`without_branches`).
+
+    Returns
+    -------
+    Skeleton
+    origin : list of int or None
+        For each new branch, the index of the old branch it is unchanged from, or ``None`` (a run split
+        at a tee, or a side branch that now ends there).
+    """
+    mended = _broken_tees_mended(skeleton)
+    index = {id(b): i for i, b in enumerate(skeleton.branches)}
+    return mended, [index.get(id(b)) for b in mended.branches]
+
+
 def _bridges_parted(skeleton: Skeleton) -> Skeleton:
     """The skeleton with each branch end at a false junction between tubes side by side opened (see
     BRIDGE_WINDOW_RADII), the two halves of a tube opened there joined as one branch, and the junctions
