@@ -259,6 +259,40 @@ def test_the_first_estimate_takes_the_points_past_a_thin_set_that_ends_with_scat
     assert np.isin(np.flatnonzero(past), taken).mean() > 0.95
 
 
+def test_a_junction_of_other_tubes_takes_no_points_of_a_pipe_that_passes_it():
+    """A rack pipe of radius 0.5 beside a neighbour of radius 1.3 (surfaces 0.75 apart) whose skeleton meets a
+    fat branch at a junction near the pipe's end (a coarse pass's bridge across a rack of a plant so): the
+    junction's reach takes 3.15 round it.  Its own branches' points there go to none, but the pipe, which
+    does not meet there, keeps its own; once they went to none, its fit stopped 3.3 short of its end."""
+    from canalsurf.pipeline import JUNCTION_EXCLUSION_RADII, _assign, _Estimates, _Fittable, _first_guess
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    def branch(a, b, r, ends=(None, None)):
+        pts = np.linspace(a, b, 40)
+        return SkeletonBranch(pts, np.full(40, 4.0), np.full(40, r), ends)
+
+    junction = np.array([2.55, 18.0, 0.0])
+    branches = [branch([0.0, 0.0, 0.0], [0.0, 20.0, 0.0], 0.5),
+                branch([2.55, 0.0, 0.0], junction, 1.3, (None, 0)), branch(junction, [2.55, 20.0, 0.0], 1.3, (0, None)),
+                branch(junction, [6.0, 18.0, 0.0], 2.1, (0, None))]
+    skel = Skeleton(branches, junction[None], 0.5)
+    rng = np.random.default_rng(0)
+    angle, height = rng.uniform(0.0, 2 * np.pi, 40_000), rng.uniform(0.0, 20.0, 40_000)
+    ring = np.column_stack([np.cos(angle), height, np.sin(angle)])
+    points = np.vstack([0.5 * ring[:20_000] * [1, 0, 1] + ring[:20_000] * [0, 1, 0],
+                        1.3 * ring[20_000:] * [1, 0, 1] + ring[20_000:] * [0, 1, 0] + [2.55, 0.0, 0.0]])
+    estimates = _Estimates([_first_guess(b) for b in branches], skel)
+    reach = estimates.junction_reach[0]
+    assert reach == pytest.approx(JUNCTION_EXCLUSION_RADII * 2.1, rel=0.05)
+    fittable = _Fittable(points, np.ones(len(points), bool))
+    near = np.linalg.norm(points - junction, axis=1) < reach
+    pipe = np.flatnonzero(near[:20_000])
+    assert len(pipe) > 500  # the pipe's points the junction reaches
+    assert np.isin(pipe, _assign(points, estimates, fittable, 0)).mean() > 0.95
+    for i in (1, 2):
+        assert not np.isin(np.flatnonzero(near), _assign(points, estimates, fittable, i)).any()
+
+
 def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     """A tube of radius 1 from z = 0 to 8 whose thin set stops at z = 6 with its last vertices straying
     sideways and back (a 10-million-point plant's pipe so): the first estimate hooks there, its end tangent

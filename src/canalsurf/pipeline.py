@@ -61,7 +61,7 @@ MAX_OUT_OF_ROUND = 0.08
 SCAN_NOISE_RATIO = 3.0
 TUBE_RELATIVE_RESIDUAL = 0.03
 #: Points within this many radii (the largest meeting there) of a junction do not take part in the
-#: fit of any branch: there the surface belongs to several tubes at once.
+#: fit of the branches that meet there: there the surface belongs to several tubes at once.
 JUNCTION_EXCLUSION_RADII = 1.5
 #: Before the fits, a point is given to the nearest branch only if it lies within this many of that
 #: branch's radii of the first tube estimate (farther points: clutter, not fitted).
@@ -854,12 +854,14 @@ def _assign(points: np.ndarray, estimates: _Estimates, fittable: _Fittable, i: i
 
     A point goes to the branch whose first tube estimate -- continued straight for
     ``ASSIGN_END_RADII`` radii past its open ends, which the thin set may fall short of -- it lies
-    nearest, if within ``ASSIGN_RADII`` of that branch's radii; points near a junction go to none
-    (their surface belongs to several tubes).  Clutter (a floor under a pipe, a box beside it) is
-    then no part of any fit, however much of the scan it is; nor is a point where the surface is
-    flat (not ``fittable``): ground beside a pipe that lies near it would otherwise pull a one-sided
-    fit towards a larger radius.  Only the points in the box of the branch's band, and the branches
-    whose bands reach into it, are looked at, so that the cost does not grow with the size of the scene.
+    nearest, if within ``ASSIGN_RADII`` of that branch's radii; points near one of its junctions go to
+    none (there its surface belongs to several tubes), but a junction of other tubes takes none of its
+    points (a rack pipe keeps its end beside its neighbour's junction).  Clutter (a floor under a pipe,
+    a box beside it) is then no part of any fit, however much of the scan it is; nor is a point where
+    the surface is flat (not ``fittable``): ground beside a pipe that lies near it would otherwise pull a
+    one-sided fit towards a larger radius.  Only the points in the box of the branch's band, and the
+    branches whose bands reach into it, are looked at, so that the cost does not grow with the size of
+    the scene.
     """
     guesses, junctions = estimates.guesses, estimates.skel.junctions
     mine = estimates.model(i)[1]
@@ -869,8 +871,9 @@ def _assign(points: np.ndarray, estimates: _Estimates, fittable: _Fittable, i: i
     label, _ = classify_points(points[near], [estimates.model(j)[0] for j in index],
                                cut=[ASSIGN_RADII * guesses[j]["eq6"] for j in index], far=False)
     keep = label == i
-    if len(junctions) and keep.any():
-        for hits in cKDTree(points[near]).query_ball_point(junctions, estimates.junction_reach):
+    own = [j for j in estimates.skel.branches[i].ends if j is not None]
+    if own and keep.any():
+        for hits in cKDTree(points[near]).query_ball_point(junctions[own], estimates.junction_reach[own]):
             keep[hits] = False
     return near[keep]
 
