@@ -271,16 +271,18 @@ def test_a_junction_of_other_tubes_takes_no_points_of_a_pipe_that_passes_it():
         pts = np.linspace(a, b, 40)
         return SkeletonBranch(pts, np.full(40, 4.0), np.full(40, r), ends)
 
+    def cylinder(x, r, rng):
+        angle, y = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 20.0, 20_000)
+        return np.column_stack([x + r * np.cos(angle), y, r * np.sin(angle)])
+
     junction = np.array([2.55, 18.0, 0.0])
     branches = [branch([0.0, 0.0, 0.0], [0.0, 20.0, 0.0], 0.5),
-                branch([2.55, 0.0, 0.0], junction, 1.3, (None, 0)), branch(junction, [2.55, 20.0, 0.0], 1.3, (0, None)),
+                branch([2.55, 0.0, 0.0], junction, 1.3, (None, 0)),
+                branch(junction, [2.55, 20.0, 0.0], 1.3, (0, None)),
                 branch(junction, [6.0, 18.0, 0.0], 2.1, (0, None))]
     skel = Skeleton(branches, junction[None], 0.5)
     rng = np.random.default_rng(0)
-    angle, height = rng.uniform(0.0, 2 * np.pi, 40_000), rng.uniform(0.0, 20.0, 40_000)
-    ring = np.column_stack([np.cos(angle), height, np.sin(angle)])
-    points = np.vstack([0.5 * ring[:20_000] * [1, 0, 1] + ring[:20_000] * [0, 1, 0],
-                        1.3 * ring[20_000:] * [1, 0, 1] + ring[20_000:] * [0, 1, 0] + [2.55, 0.0, 0.0]])
+    points = np.vstack([cylinder(0.0, 0.5, rng), cylinder(2.55, 1.3, rng)])
     estimates = _Estimates([_first_guess(b) for b in branches], skel)
     reach = estimates.junction_reach[0]
     assert reach == pytest.approx(JUNCTION_EXCLUSION_RADII * 2.1, rel=0.05)
