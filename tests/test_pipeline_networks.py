@@ -221,6 +221,30 @@ def test_a_link_across_the_ends_of_two_pipes_is_no_tube():
     assert sorted(_inside_others(fits, skel)) == [2, 6]
 
 
+def test_a_piece_of_a_pipe_found_twice_keeps_its_part_outside_with_the_junction_it_leaves_open():
+    """A rack pipe of radius 0.6 found as two pieces (a 10-million-point plant's pipe so): the long one from
+    x = 4 on, and one from the pipe's start, x = 0, to a false junction at x = 8, its last 4 inside the
+    long one.  The first piece keeps its part outside, x = 0 to 3.4, with the end it cut off open; dropped
+    whole, it lost 3.4 of the pipe.  A piece with less than four radii outside is still dropped."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import OWN_PART_RADII, _own_part
+    from canalsurf.skeleton import SkeletonBranch
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    u = np.linspace(0.0, 1.0, 50)
+    long = SimpleNamespace(spine=pspline_fit(u, np.column_stack([4.0 + 20.0 * u, 0 * u, 0 * u]), n_segments=4),
+                           radius=constant_spline(0.6))
+    x = np.linspace(0.0, 8.0, 81)
+    piece = SkeletonBranch(np.column_stack([x, 0 * x, 0 * x]), np.ones(81), np.full(81, 0.6), (None, 0))
+    part = _own_part([long], piece, 0.6)
+    assert part is not None and part.ends == (None, None)
+    assert part.points[0, 0] == 0.0 and part.points[-1, 0] == pytest.approx(4.0 - 0.6, abs=0.15)
+    short = SkeletonBranch(piece.points[20:], piece.weights[20:], piece.radius[20:], (None, 0))
+    assert 4.0 - 0.6 - short.points[0, 0] < OWN_PART_RADII * 0.6  # its part outside, x = 2 to 3.4
+    assert _own_part([long], short, 0.6) is None
+
+
 def test_a_reducer_in_a_piping_scan_is_fitted_as_a_canal_whole():
     """Of the piping network (seed 201, 2 % noise) the 4" x 2" reducer: a pipe fit takes its wide half and
     leaves the narrow half out as outliers, so whether a canal is worth fitting is judged on every point

@@ -1260,15 +1260,16 @@ INSIDE_SAMPLES = 100
 
 
 #: A branch that runs inside other tubes keeps its longest stretch outside them, if that stretch is at least
-#: OWN_PART_RADII of its radius long and holds no junction end: a stub whose thin set ran on into the tube
-#: it leaves (an L, with no junction where they meet) is a tube there, while a copy of a tube or a link
-#: across the ends of two leaves nothing that long outside.
+#: OWN_PART_RADII of its radius long: a stub whose thin set ran on into the tube it leaves (an L, with no
+#: junction where they meet) is a tube there, and so is a piece of a tube found twice over part of its
+#: length, while a copy of a tube or a link across the ends of two leaves nothing that long outside.
 OWN_PART_RADII = 4.0
 
 
 def _own_part(fits: list, branch: SkeletonBranch, radius: float) -> SkeletonBranch | None:
     """The part of an open skeleton branch outside the tubes of ``fits`` (falsy entries skipped) as a
-    branch of its own (see OWN_PART_RADII), or ``None``."""
+    branch of its own (see OWN_PART_RADII), or ``None``.  An end the part stops short of is open: the
+    caller repairs the junction it left."""
     others = [f for f in fits if f]
     if branch.closed or not others:
         return None
@@ -1283,10 +1284,10 @@ def _own_part(fits: list, branch: SkeletonBranch, radius: float) -> SkeletonBran
         return None
     s = polyline_arclength(branch.points)
     a, b = max(runs, key=lambda run: s[run[1] - 1] - s[run[0]])
-    if (b - a < 4 or s[b - 1] - s[a] < OWN_PART_RADII * radius
-            or (a > 0 and branch.ends[0] is not None) or (b < len(inside) and branch.ends[1] is not None)):
+    if b - a < 4 or s[b - 1] - s[a] < OWN_PART_RADII * radius:
         return None
-    return SkeletonBranch(branch.points[a:b], branch.weights[a:b], branch.radius[a:b], branch.ends, False)
+    ends = (branch.ends[0] if a == 0 else None, branch.ends[1] if b == len(inside) else None)
+    return SkeletonBranch(branch.points[a:b], branch.weights[a:b], branch.radius[a:b], ends, False)
 
 
 def _largest_at_junctions(fits: list, skel: Skeleton) -> np.ndarray:
@@ -1515,23 +1516,26 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
         inside = _inside_others(fits, skel)
         rest = [False if k in inside else f for k, f in enumerate(fits)]
         last = round_ == MAX_FIT_ROUNDS - 1  # a part cut in the last round could not be fitted
+        opened = False  # a part left a junction
         for i in inside:
             part = None if i in cut or last else _own_part(rest, skel.branches[i], fits[i].eq6)
             if part is None:
                 reason, fits[i] = "its spine runs inside other tubes (it joins their ends, it is none itself)", False
             else:
+                opened |= part.ends != skel.branches[i].ends
                 skel = replace(skel, branches=[part if k == i else b for k, b in enumerate(skel.branches)])
                 fits[i] = None
                 cut.add(i)
         drop = [i for i, f in enumerate(fits) if f is False]
-        if not drop:
+        if not drop and not opened:
             if all(fits):
                 break
             continue
         if len(drop) == len(fits):
             raise ReconstructionError(f"no part of the cloud is a tube ({reason or 'no branch could be fitted'})"
                                       " — check the input is a scan of pipes or canals")
-        log.info("%d of %d branches are no tube (left out): %s", len(drop), len(fits), reason)
+        if drop:
+            log.info("%d of %d branches are no tube (left out): %s", len(drop), len(fits), reason)
         skel, origin = without_branches(skel, drop)
         skel, unchanged = with_tees_mended(skel)
         origin = [None if u is None else origin[u] for u in unchanged]

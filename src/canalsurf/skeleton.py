@@ -734,7 +734,8 @@ def _joined(a: SkeletonBranch, c: SkeletonBranch) -> SkeletonBranch:
 
 
 def without_branches(skeleton: Skeleton, drop) -> tuple[Skeleton, list]:
-    """The skeleton less the branches ``drop`` (indices), with the junctions they leave repaired.
+    """The skeleton less the branches ``drop`` (indices, may be none), with the junctions left with fewer
+    than three branch ends repaired.
 
     A junction left with two branch ends joins those branches into one where one goes on from the
     other (``MAX_JOIN_TURN``), else both ends are opened; a junction left with one end becomes an open
