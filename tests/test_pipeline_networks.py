@@ -133,17 +133,32 @@ def test_a_free_end_is_not_cut_short_where_the_thin_set_stops():
 
 
 def test_branches_fitted_in_parallel_are_the_ones_fitted_one_by_one(monkeypatch):
-    """A scene's branches are fitted in forked processes, each on its own task: the model is the same."""
+    """A scene's branches are fitted in forked processes, each on its own task: the model is the same,
+    whether many branches or a large scan sends them there."""
+    import concurrent.futures
+
     from canalsurf import pipeline
 
+    pools = []
+
+    class Recorded(concurrent.futures.ProcessPoolExecutor):
+        def __init__(self, *args, **kwargs):
+            pools.append(kwargs["max_workers"])
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", Recorded)
+    monkeypatch.setattr(pipeline, "_cores", lambda: 2)
     truth = make_network("rack", n=N_POINTS, noise=NOISE, rng=SEEDS[0])
     monkeypatch.setattr(pipeline, "PARALLEL_BRANCHES", 10**9)
+    monkeypatch.setattr(pipeline, "PARALLEL_POINTS", 10**12)
     one_by_one = canalsurf.reconstruct(truth.points)
-    monkeypatch.setattr(pipeline, "PARALLEL_BRANCHES", 2)
-    monkeypatch.setattr(pipeline, "_cores", lambda: 2)
-    parallel = canalsurf.reconstruct(truth.points)
-    assert len(one_by_one.branches) == len(truth.branches) >= 2
-    assert parallel.to_dict() == one_by_one.to_dict()
+    assert len(one_by_one.branches) == len(truth.branches) >= 2 and not pools
+    for many, large in ((2, 10**12), (10**9, 0)):
+        monkeypatch.setattr(pipeline, "PARALLEL_BRANCHES", many)
+        monkeypatch.setattr(pipeline, "PARALLEL_POINTS", large)
+        pools.clear()
+        assert canalsurf.reconstruct(truth.points).to_dict() == one_by_one.to_dict()
+        assert pools and set(pools) == {2}
 
 
 def test_a_plant_of_tubes_four_times_apart_in_radius_is_found_whole():

@@ -1205,8 +1205,11 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
     return fit if ok else why
 
 
-#: Branches fitted at once before the fits are spread over the machine's cores (fewer: one process).
+#: Branches fitted at once before the fits are spread over the machine's cores, and the scan's points
+#: from which two are enough (their fits take seconds each: the few a scene refits after joining pieces
+#: or dropping branches); fewer, one process, which costs less than forking.
 PARALLEL_BRANCHES = 8
+PARALLEL_POINTS = 200_000
 _JOB: dict = {}
 
 
@@ -1228,9 +1231,9 @@ def _cores() -> int:
 
 def _fit_all(tasks: list, job: dict, client=None) -> list:
     """:func:`_fit_one` of every branch in ``tasks``: as Dask tasks on ``client``'s workers if given,
-    else over the cores in forked processes (Linux) when there are many, so that a scene's hundreds of
-    branches take a share of the time.  Each fit depends on its task alone, so the results are the
-    same every way."""
+    else over the cores in forked processes (Linux) when there are many or the scan is large (see
+    PARALLEL_BRANCHES), so that a scene's hundreds of branches take a share of the time.  Each fit
+    depends on its task alone, so the results are the same every way."""
     import multiprocessing  # only for a scene: a single tube's run does not pay for the import
     from concurrent.futures import ProcessPoolExecutor
 
@@ -1239,7 +1242,8 @@ def _fit_all(tasks: list, job: dict, client=None) -> list:
 
         return list(map_in_order(client, _fit_one, tasks, job))
     cores = _cores()
-    if len(tasks) < PARALLEL_BRANCHES or cores < 2 or "fork" not in multiprocessing.get_all_start_methods():
+    few = len(tasks) < 2 or (len(tasks) < PARALLEL_BRANCHES and len(job["points"]) < PARALLEL_POINTS)
+    if few or cores < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return [_fit_one(i, job) for i in tasks]
     global _JOB
     _JOB = job
