@@ -302,6 +302,55 @@ def test_a_canal_fit_that_went_wrong_does_not_take_the_pipe_fit_with_it(monkeypa
     assert abs(float(fit.radius(0.5)) - 1.2) < 0.01 * 1.2
 
 
+@pytest.mark.parametrize("distance, steady", [
+    (lambda t: np.ones_like(t), True),
+    (lambda t: 1.0 + 0.02 * (t - 0.5), True),  # 2 %: under half the least variation of a canal
+    (lambda t: 1.0 + 0.08 * (t - 0.5), False),  # 8 %: a taper a canal fit may keep
+    (lambda t: np.where(t < 0.5, 1.0, 0.5), False),  # a reducer, its narrow half the pipe fit's outliers
+])
+def test_a_pipe_fit_whose_points_keep_their_distance_from_its_spine_has_a_steady_radius(distance, steady):
+    """Of 4,000 points (1 % noise), a pipe fit of radius 1 whose points lie at ``distance(t)`` from its
+    spine: a radius function through those distances varies by under STEADY_SHARE of CANAL_MIN_VARIATION
+    only where they keep it."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _steady_radius
+    from canalsurf.spine import constant_spline
+
+    rng = np.random.default_rng(0)
+    t = np.sort(rng.uniform(0.0, 1.0, 4000))
+    fit = SimpleNamespace(t=t, residual=distance(t) - 1.0 + rng.normal(0.0, 0.01, len(t)), radius=constant_spline(1.0))
+    assert _steady_radius(fit, 6, closed=False) is steady
+
+
+@pytest.mark.parametrize("taper", [0.0, 0.5])
+def test_a_grown_pipe_is_fitted_again_as_a_pipe_alone_unless_its_radius_changes(monkeypatch, taper):
+    """A branch fitted as a pipe and grown (its estimate now that fit) is fitted again as a pipe alone
+    where its radius stays steady: a pipe of radius 1.2 along x in [0, 24] (1 % noise).  Where it does not
+    -- a cone whose radius grows by ``taper`` of it over that length -- the canal fit is made as on a
+    first fit, and kept."""
+    import canalsurf.pipeline as pipeline
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    refine, made = pipeline.refine_fit, []
+
+    def counted(points, spine, radius, *, radius_segments, **kwargs):
+        made.append("pipe" if radius_segments is None else "canal")
+        return refine(points, spine, radius, radius_segments=radius_segments, **kwargs)
+
+    monkeypatch.setattr(pipeline, "refine_fit", counted)
+    points = _pipe_points(1.0, 0, 24, 5000, np.random.default_rng(0))
+    points[:, 1:] *= (1.2 * (1 + taper * points[:, 0] / 24))[:, None]
+    u = np.linspace(0.0, 1.0, 50)
+    r = 1.2 * (1 + taper / 2)
+    guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(r),
+             "eq6": r, "segments": (6, 6), "closed": False}
+    fit = pipeline._fit_branch(points, guess, kind="auto", refine=True, was="pipe")
+    assert fit.kind == ("canal" if taper else "pipe")
+    assert made == (["pipe", "canal", "pipe"] if taper else ["pipe"])
+    assert abs(float(fit.radius(0.5)) - 1.2 * (1 + taper / 2)) < 0.01 * 1.2
+
+
 def test_points_that_all_lie_past_a_spines_end_are_another_tube():
     """A side of a fit's points whose footpoints all fall on the spine's end (t = 1: they lie past it)
     spans no stretch of the spine to fit a pipe along: it is another tube, and no fit is tried on an

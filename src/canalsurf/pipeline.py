@@ -878,16 +878,28 @@ def _assign(points: np.ndarray, estimates: _Estimates, fittable: _Fittable, i: i
     return near[keep]
 
 
-def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> _BranchFit:
-    """Spine and radius of one branch: the refined fit to its points, or the paper's own result."""
+def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was: str | None = None) -> _BranchFit:
+    """Spine and radius of one branch: the refined fit to its points, or the paper's own result.
+
+    ``was`` is the kind of the fit ``guess`` holds, when the branch is fitted again once grown
+    (:func:`_grow`): a pipe is then fitted again as a pipe alone, unless its radius no longer stays
+    steady along it (:func:`_steady_radius`).
+    """
     spine, radius_fn, eq6 = guess["spine"], guess["radius"], guess["eq6"]
     closed, (nseg, rseg) = guess["closed"], guess["segments"]
     if refine:
         fits = {}
+        if kind == "auto" and was == "pipe":
+            # From its own converged fit a pipe takes a few passes, a canal fit several times as long:
+            # the canal fit is made only where the grown points leave the radius changing.
+            pipe = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg, radius_segments=None,
+                              reach=eq6)
+            if _steady_radius(pipe, rseg, closed):
+                fits["pipe"], kind = pipe, "pipe"
         if kind in ("auto", "canal"):
             fits["canal"] = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
                                        radius_segments=rseg, reach=eq6)
-        if kind in ("auto", "pipe"):
+        if kind in ("auto", "pipe") and "pipe" not in fits:
             # The canal fit's spine is the better start, unless that fit ran off (its free radius
             # function lets a bad step grow) or folded (its end slid back along the tube, dragged by a
             # hook of the first estimate): then the pipe fit would go with it.
@@ -920,6 +932,27 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool) -> 
         radius_fn = constant_spline(eq6)
     t, residual = footpoints(points, spine, radius_fn, closed=closed)
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
+
+
+#: A pipe fit's radius is steady where a radius function fitted to its points' distances from its spine
+#: varies by less than this share of CANAL_MIN_VARIATION (:func:`_steady_radius`).
+STEADY_SHARE = 0.5
+
+
+def _steady_radius(fit: RefineResult, segments: int, closed: bool) -> bool:
+    """Whether the points of a pipe ``fit`` keep their distance from its spine along it: a radius
+    function of ``segments`` intervals fitted to those distances (the spine held) varies by less than
+    STEADY_SHARE of ``CANAL_MIN_VARIATION``, so that no canal fit, which may move the spine too, would
+    be kept.
+
+    Every point counts, the fit's outliers too: on a reducer a pipe fit takes the wide half and leaves
+    the narrow one out, and its distances are what show the change; strays only make a canal fit likelier.
+    """
+    if len(fit.t) < C.POINTS_PER_SEGMENT * (segments + 3):
+        return False
+    samples = pspline_fit(fit.t, fit.residual + float(fit.radius.c[0]), n_segments=segments,
+                          closed=closed)(np.linspace(0.0, 1.0, 200))
+    return bool(np.ptp(samples) < STEADY_SHARE * C.CANAL_MIN_VARIATION * np.mean(samples))
 
 
 #: A canal fit whose radius leaves [r_b / RUNAWAY_RADIUS, RUNAWAY_RADIUS r_b] anywhere has run off: the
@@ -1054,7 +1087,7 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
         estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
         idx = _assign(points, estimates, fittable, i)
-        fit = _fit_branch(points[idx], estimates.guesses[i], kind=kind, refine=True)
+        fit = _fit_branch(points[idx], estimates.guesses[i], kind=kind, refine=True, was=fit.kind)
     return fit, idx
 
 

@@ -47,8 +47,9 @@ END_GAP_JUMP = 8.0
 #: crowd there, while stray points spread evenly over the whole outlier shell.
 END_SIGMAS = 2.0
 #: The fit has converged when a pass's relative cost reduction changes by less than this from the
-#: last pass and neither end moves by more than ``CONVERGED_END`` of the reach.
-CONVERGED_GAIN = 1e-4
+#: last pass and neither end moves by more than ``CONVERGED_END`` of the reach.  (At a tenth of this,
+#: fits went on for passes whose gains differed by less than a thousandth: more passes, the same tubes.)
+CONVERGED_GAIN = 1e-3
 CONVERGED_END = 0.01
 #: A pass that repeats one of the last this many passes (within the tolerances above) ends the fit.
 CYCLE_PASSES = 8
