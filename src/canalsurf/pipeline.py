@@ -890,8 +890,8 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was
     if refine:
         fits = {}
         if kind == "auto" and was == "pipe":
-            # From its own converged fit a pipe takes a few passes, a canal fit several times as long:
-            # the canal fit is made only where the grown points leave the radius changing.
+            # Started from its own converged fit, a pipe fit takes few passes; the canal fit, and the pipe
+            # fit started from it, are made only where the grown points leave the radius changing.
             pipe = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg, radius_segments=None,
                               reach=eq6)
             if _steady_radius(pipe, rseg, closed):
