@@ -334,6 +334,37 @@ def test_a_junction_of_other_tubes_takes_no_points_of_a_pipe_that_passes_it():
         assert not np.isin(np.flatnonzero(near), _assign(points, estimates, fittable, i)).any()
 
 
+def test_a_branch_takes_the_points_it_would_take_were_its_whole_box_classified():
+    """Two pipes side by side along a diagonal (radii 0.5 and 1.3, axes 2.55 apart), their points scattered
+    by up to 0.35 off the surface, past the thin one's assign cut (0.25): the box of the thin one's band
+    holds many of the fat one's points.  Only the points within the band's reach of its spine are
+    classified for it; it must take exactly those that classifying all of its box gives it."""
+    from canalsurf.network import classify_points
+    from canalsurf.pipeline import ASSIGN_RADII, _assign, _Estimates, _Fittable, _first_guess
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    along, across = np.array([1.0, 1.0, 0.0]) / np.sqrt(2), np.array([1.0, -1.0, 0.0]) / np.sqrt(2)
+    rng = np.random.default_rng(0)
+    branches, clouds = [], []
+    for offset, r in ((0.0, 0.5), (2.55, 1.3)):
+        axis = offset * across + np.linspace(0.0, 20.0, 40)[:, None] * along
+        branches.append(SkeletonBranch(axis, np.full(40, 4.0), np.full(40, r), (None, None)))
+        angle, s = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 20.0, 20_000)
+        rho = r + rng.uniform(-0.35, 0.35, 20_000)
+        clouds.append(offset * across + s[:, None] * along
+                      + rho[:, None] * (np.cos(angle)[:, None] * across + np.sin(angle)[:, None] * np.array([0.0, 0.0, 1.0])))
+    points = np.vstack(clouds)
+    estimates = _Estimates([_first_guess(b) for b in branches], Skeleton(branches, np.empty((0, 3)), 0.5))
+    fittable = _Fittable(points, np.ones(len(points), bool))
+    box = fittable.in_box(points, estimates.model(0)[1])
+    assert (box >= 20_000).sum() > 5_000  # the fat pipe's points in the thin one's box
+    label, _ = classify_points(points[box], [estimates.model(j)[0] for j in (0, 1)],
+                               cut=[ASSIGN_RADII * g["eq6"] for g in estimates.guesses], far=False)
+    taken = _assign(points, estimates, fittable, 0)
+    assert len(taken) > 12_000
+    np.testing.assert_array_equal(taken, box[label == 0])
+
+
 def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     """A tube of radius 1 from z = 0 to 8 whose thin set stops at z = 6 with its last vertices straying
     sideways and back (a 10-million-point plant's pipe so): the first estimate hooks there, its end tangent

@@ -821,14 +821,20 @@ class _Estimates:
         out._made = {j: made for j, made in self._made.items() if j != i}
         return out
 
-    def model(self, i: int) -> tuple[CanalModel, np.ndarray]:
-        """Branch ``i``'s stand-in and the corners (2, 3) of a box holding it and its assign band."""
+    def model(self, i: int) -> tuple[CanalModel, np.ndarray, np.ndarray, float]:
+        """Branch ``i``'s stand-in, the corners (2, 3) of a box holding it and its assign band, samples
+        along its spine, and the distance from them within which the band lies."""
         if i not in self._made:
             g = self.guesses[i]
             model = _stand_in(g, self.skel.branches[i], i)
-            pts = model.spine(np.linspace(0.0, 1.0, 64 * (len(model.spine.t) - 2 * model.spine.k)))
+            t = np.linspace(0.0, 1.0, 64 * (len(model.spine.t) - 2 * model.spine.k))
+            pts = model.spine(t)
             reach = float(model.radius(np.linspace(0.0, 1.0, 64)).max()) + ASSIGN_RADII * g["eq6"]
-            self._made[i] = (model, np.array([pts.min(axis=0) - reach, pts.max(axis=0) + reach]))
+            # The spine is within a sample step of a sample, the band within the largest radius and the
+            # assign cut of the spine.
+            band = (float(model.radius(t).max()) + ASSIGN_RADII * g["eq6"]
+                    + float(np.linalg.norm(np.diff(pts, axis=0), axis=1).max()))
+            self._made[i] = (model, np.array([pts.min(axis=0) - reach, pts.max(axis=0) + reach]), pts, band)
         return self._made[i]
 
 
@@ -864,10 +870,13 @@ def _assign(points: np.ndarray, estimates: _Estimates, fittable: _Fittable, i: i
     the scene.
     """
     guesses, junctions = estimates.guesses, estimates.skel.junctions
-    mine = estimates.model(i)[1]
+    _, mine, samples, band = estimates.model(i)
     boxes = np.array([estimates.model(j)[1] for j in range(len(guesses))])
     index = np.flatnonzero(np.all((boxes[:, 0] <= mine[1]) & (boxes[:, 1] >= mine[0]), axis=1))
     near = fittable.in_box(points, mine)
+    # Only points within the band can be the branch's: the rest of its box (a rack's other pipes) need
+    # not be classified.
+    near = near[cKDTree(samples).query(points[near], distance_upper_bound=band)[0] <= band]
     label, _ = classify_points(points[near], [estimates.model(j)[0] for j in index],
                                cut=[ASSIGN_RADII * guesses[j]["eq6"] for j in index], far=False)
     keep = label == i
