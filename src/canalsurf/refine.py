@@ -71,8 +71,9 @@ PARALLEL_MIN_POINTS = 50_000
 FOOTPOINT_SAMPLES = 1024
 FOOTPOINT_COARSE = 256
 #: The canal search bounds runs of this many consecutive samples by a sphere, so that a point
-#: computes exact distances only to the few runs that can hold its best sample.
-FOOTPOINT_RUN = 8
+#: computes exact distances only to the few runs that can hold its best sample.  Each run is one pass of
+#: array operations over the points that need it: fewer, longer runs cost less than the extra distances.
+FOOTPOINT_RUN = 16
 #: Points per batch of the canal search: bounds its scratch memory (about 40 MB).
 FOOTPOINT_BATCH = 1 << 16
 #: An open spine whose tangent at an end is turned by more than this from its chord over the last
