@@ -344,6 +344,7 @@ def test_a_branch_takes_the_points_it_would_take_were_its_whole_box_classified()
     from canalsurf.skeleton import Skeleton, SkeletonBranch
 
     along, across = np.array([1.0, 1.0, 0.0]) / np.sqrt(2), np.array([1.0, -1.0, 0.0]) / np.sqrt(2)
+    up = np.array([0.0, 0.0, 1.0])
     rng = np.random.default_rng(0)
     branches, clouds = [], []
     for offset, r in ((0.0, 0.5), (2.55, 1.3)):
@@ -352,7 +353,7 @@ def test_a_branch_takes_the_points_it_would_take_were_its_whole_box_classified()
         angle, s = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 20.0, 20_000)
         rho = r + rng.uniform(-0.35, 0.35, 20_000)
         clouds.append(offset * across + s[:, None] * along
-                      + rho[:, None] * (np.cos(angle)[:, None] * across + np.sin(angle)[:, None] * np.array([0.0, 0.0, 1.0])))
+                      + rho[:, None] * (np.cos(angle)[:, None] * across + np.sin(angle)[:, None] * up))
     points = np.vstack(clouds)
     estimates = _Estimates([_first_guess(b) for b in branches], Skeleton(branches, np.empty((0, 3)), 0.5))
     fittable = _Fittable(points, np.ones(len(points), bool))
