@@ -39,6 +39,10 @@ def voxel_average(points: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarr
         Voxel index of each input point.
     """
     keys = np.floor((points - points.min(axis=0)) / size).astype(np.int64)
+    span = keys.max(axis=0, initial=0) + 1
+    if float(np.prod(span, dtype=float)) < 2.0**62:
+        # One integer per voxel, in the rows' lexicographic order: sorting it is many times faster.
+        keys = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
     _, label, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     label = label.ravel()
     centres = np.zeros((len(counts), 3))
