@@ -121,9 +121,15 @@ def half_shrunk():
     return tube.points - 0.85 * normals, normals
 
 
+@pytest.mark.parametrize("slabs", [1, 3])
 @pytest.mark.parametrize("tau", [0.0, COS80])
 @pytest.mark.parametrize("R", [0.2, 0.35])
-def test_kdtree_break_mask_equals_brute_force(half_shrunk, tau, R):
+def test_kdtree_break_mask_equals_brute_force(half_shrunk, tau, R, slabs, monkeypatch):
+    """Searched as one cloud, or as slabs across it in threads (:func:`canalsurf._rows.slabs`)."""
+    from canalsurf import _rows
+
+    monkeypatch.setattr(_rows, "cores", lambda: slabs)
+    monkeypatch.setattr(_rows, "MIN_SLAB_POINTS", 50)
     points, normals = half_shrunk
     fast = break_mask(points, normals, R, tau)
     slow = _brute_break_mask(points, normals, R, tau)

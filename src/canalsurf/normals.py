@@ -14,6 +14,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
+from ._rows import by_rows
 from .constants import NORMAL_NEIGHBOURS, ORIENT_LINK_REACH, ORIENT_NEIGHBOURS
 
 __all__ = ["estimate_normals", "orient_normals", "point_inward", "on_planes", "scatter_matrices", "surface_noise"]
@@ -48,8 +49,11 @@ def scatter_matrices(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 def _pca_normals(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    _, vecs = np.linalg.eigh(scatter_matrices(points, idx))  # ascending eigenvalues: column 0 is the plane normal
-    return vecs[:, :, 0]
+    def normals(rows):
+        _, vecs = np.linalg.eigh(scatter_matrices(points, idx[rows]))  # ascending: column 0 is the normal
+        return vecs[:, :, 0]
+
+    return by_rows(normals, len(idx))
 
 
 def estimate_normals(points: np.ndarray, *, k: int | None = None, neighbours: np.ndarray | None = None) -> np.ndarray:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ._rows import by_rows
 from .constants import CANAL_MIN_VARIATION, MAX_RADIUS_RATIO
 
 __all__ = ["principal_curvature", "curvature_radius", "pipe_radius", "prefer_canal", "plausible_radius"]
@@ -41,8 +42,13 @@ def principal_curvature(points: np.ndarray, normals: np.ndarray, *, k: int = 16,
     ndarray, shape (N,)
     """
     idx = cKDTree(points).query(points, k=min(k, len(points)), workers=-1)[1] if neighbours is None else neighbours
-    dp = points[idx] - points[:, None, :]
-    dn = normals[idx] - normals[:, None, :]
+    return by_rows(lambda rows: _kappa_max(points[idx[rows]] - points[rows, None, :],
+                                           normals[idx[rows]] - normals[rows, None, :], normals[rows]), len(idx))
+
+
+def _kappa_max(dp: np.ndarray, dn: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """:func:`principal_curvature` from each point's offsets ``dp`` to its neighbours and the differences
+    ``dn`` of their normals from its own, ``normals``."""
     # Tangent basis of each point: any two unit vectors orthogonal to the normal.
     helper = np.where(np.abs(normals[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
     e1 = np.cross(normals, helper)

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ._rows import in_threads, slabs
 from .constants import PATIENCE, PATIENCE_SHARE, PEAK_DROP, PEAK_MIN_SHARE
 from .errors import InputError
 
@@ -78,12 +79,6 @@ class ShrinkResult:
     stop_rule: str
     converged: bool
     history: list = field(default_factory=list, repr=False)
-
-
-def _pairs_kdtree(points: np.ndarray, R: float) -> tuple[np.ndarray, np.ndarray]:
-    # T_i holds the points strictly closer than R; the tree's query includes distance == R.
-    pairs = cKDTree(points).query_pairs(np.nextafter(R, 0.0), output_type="ndarray")
-    return pairs[:, 0], pairs[:, 1]
 
 
 def _gauss_cells(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,14 +136,22 @@ def break_mask(points: np.ndarray, normals: np.ndarray, R: float, tau: float = 0
     -------
     ndarray of bool, shape (N,)
     """
+    def marked(pairs):
+        i, j = pairs
+        opposite = np.einsum("ij,ij->i", normals[i], normals[j]) < tau
+        return np.concatenate([i[opposite], j[opposite]])
+
     if neighbours == "gauss":
-        i, j = _pairs_gauss(points, R, cells if cells is not None else _gauss_cells(normals))
+        hits = marked(_pairs_gauss(points, R, cells if cells is not None else _gauss_cells(normals)))
     else:
-        i, j = _pairs_kdtree(points, R)
-    opposite = np.einsum("ij,ij->i", normals[i], normals[j]) < tau
+        # T_i holds the points strictly closer than R; the tree's query includes distance == R.  Each
+        # slab is searched in a thread; a pair in two slabs' overlap is marked twice.
+        reach = np.nextafter(R, 0.0)
+        hits = np.concatenate(in_threads(
+            lambda rows: marked(rows[cKDTree(points[rows]).query_pairs(reach, output_type="ndarray").T]),
+            slabs(points, reach)))
     mask = np.zeros(len(points), bool)
-    mask[i[opposite]] = True
-    mask[j[opposite]] = True
+    mask[hits] = True
     return mask
 
 
