@@ -548,6 +548,24 @@ def test_two_fitted_pieces_of_one_tube_are_paired(second, radius, ends, paired_e
     assert _pieces_of_one_tube(fits, skel) == ([] if paired_end is None else [((0, 1), (1, paired_end))])
 
 
+def test_a_pair_of_pieces_refused_is_not_proposed_again():
+    """A tube in three pieces: each piece is in one pair at most, the nearest ends first.  Once the
+    joined fit of two pieces was refused, the same two fits are no pair any more, and the next nearest
+    ends pair instead; a new fit of a piece makes a pair again."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _pieces_of_one_tube
+
+    fits = [_piece((0.0, 0, 0), (10.0, 0, 0)), _piece((12.0, 0, 0), (20.0, 0, 0)), _piece((22.0, 0, 0), (30.0, 0, 0))]
+    skel = SimpleNamespace(branches=[SimpleNamespace(ends=(None, None))] * 3)
+    assert _pieces_of_one_tube(fits, skel) == [((0, 1), (1, 0))]
+    assert _pieces_of_one_tube(fits, skel, ((fits[0], 1, fits[1], 0),)) == [((1, 1), (2, 0))]
+    refused = ((fits[0], 1, fits[1], 0), (fits[1], 1, fits[2], 0))
+    assert _pieces_of_one_tube(fits, skel, refused) == [((0, 1), (2, 0))]
+    assert _pieces_of_one_tube(fits, skel, (*refused, (fits[0], 1, fits[2], 0))) == []
+    assert _pieces_of_one_tube([_piece((0.0, 0, 0), (10.0, 0, 0)), *fits[1:]], skel, refused) == [((0, 1), (1, 0))]
+
+
 def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
     """The thin set of a pipe broke 4 radii short of its middle (as a scene's sparse subset leaves
     it): the two pieces, each grown towards the other, are joined and fitted as one branch end to end

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -21,6 +20,7 @@ from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
 from . import constants as C
+from ._rows import cores as _cores
 from ._validate import MIN_POINTS, as_normals, as_points, choice, in_range, positive
 from .errors import InputError, ReconstructionError
 from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
@@ -1266,11 +1266,6 @@ def _quiet_worker() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
-
-
 def _fit_all(tasks: list, job: dict, client=None) -> list:
     """:func:`_fit_one` of every branch in ``tasks``: as Dask tasks on ``client``'s workers if given,
     else over the cores in forked processes (Linux) when there are many or the scan is large (see
@@ -1410,10 +1405,11 @@ PIECE_SAMPLES_PER_RADIUS = 2
 JOINED_RMS_RATIO = 1.25
 
 
-def _pieces_of_one_tube(fits: list, skel: Skeleton) -> list:
+def _pieces_of_one_tube(fits: list, skel: Skeleton, refused: tuple = ()) -> list:
     """Pairs ``((a, ea), (b, eb))`` of open ends of fitted branches that may be one tube's two pieces
     (see PIECE_GAP_RADII), each branch in one pair at most: those inside each other first, then those
-    in line, the pairs whose ends are closest first in each."""
+    in line, the pairs whose ends are closest first in each.  A pair of ``refused`` (its two fits, by
+    identity, and their ends: see :func:`_joined_pieces`) is none."""
     pts, radius, ends = [], {}, {}
     for i, f in enumerate(fits):
         if not f or f.closed:
@@ -1450,13 +1446,19 @@ def _pieces_of_one_tube(fits: list, skel: Skeleton) -> list:
             & ((in_line & in_line.T) | (inside & inside.T)))
     # Pieces that overlap or nearly meet before pieces a gap apart: those are surer.
     candidates = [(not (inside[m, n] and inside[n, m]), float(np.linalg.norm(v[m, n])), keys[m], keys[n])
-                  for m, n in np.argwhere(pair)]
+                  for m, n in np.argwhere(pair) if not _refused(fits, keys[m], keys[n], refused)]
     pairs, taken = [], set()
     for *_, (a, ea), (b, eb) in sorted(candidates):
         if not {a, b} & taken:
             taken |= {a, b}
             pairs.append(((a, ea), (b, eb)))
     return pairs
+
+
+def _refused(fits: list, end_a: tuple, end_b: tuple, refused) -> bool:
+    """Whether the pair of ends ``end_a``, ``end_b`` (``(branch, end)`` each) is one of ``refused``."""
+    (a, ea), (b, eb) = end_a, end_b
+    return any(fa is fits[a] and fb is fits[b] and (xa, xb) == (ea, eb) for fa, xa, fb, xb in refused)
 
 
 def _unmet_ends(fits: list, skel: Skeleton) -> list:
@@ -1490,12 +1492,13 @@ def _spans(fit: _BranchFit, first: np.ndarray, last: np.ndarray) -> bool:
     return bool(cKDTree(spine).query(np.array([first, last]))[0].max() <= END_TRIM_RADII * fit.eq6)
 
 
-def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skeleton, list]:
-    """The skeleton and fits with each two pieces of one tube (:func:`_pieces_of_one_tube`) joined and
-    fitted as one branch -- where that fit is a tube; else both pieces stay as they were."""
-    pairs = _pieces_of_one_tube(fits, skel)
+def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, refused: tuple = ()) -> tuple[Skeleton, list, list]:
+    """The skeleton and fits with each two pieces of one tube (:func:`_pieces_of_one_tube`, but for the
+    pairs ``refused``) joined and fitted as one branch -- where that fit is a tube; else both pieces stay
+    as they were.  Also the pairs refused now, as ``(fit, end, fit, end)``."""
+    pairs = _pieces_of_one_tube(fits, skel, refused)
     if not pairs:
-        return skel, fits
+        return skel, fits, []
     ends = {(a, ea): _end_frame(fits[a].spine, ea) for (a, ea), _ in pairs}
     outward = {key: d for key, (_, d) in ends.items()}
     joined, origin = with_ends_joined(skel, pairs, outward)
@@ -1519,11 +1522,12 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client) -> tuple[Skele
 
     good = [((a, ea), (b, eb)) for (a, ea), (b, eb) in pairs if kept(a, ea, b, eb)]
     log.info("%d of %d pairs of branches are pieces of one tube: joined", len(good), len(pairs))
+    bad = [(fits[a], ea, fits[b], eb) for (a, ea), (b, eb) in pairs if ((a, ea), (b, eb)) not in good]
     if not good:
-        return skel, fits
+        return skel, fits, bad
     joined, origin = with_ends_joined(skel, good, outward) if len(good) < len(pairs) else (joined, origin)
     firsts = iter(sorted(a for (a, _), _ in good))
-    return joined, [by_first[next(firsts)] if o is None else fits[o] for o in origin]
+    return joined, [by_first[next(firsts)] if o is None else fits[o] for o in origin], bad
 
 
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
@@ -1553,10 +1557,15 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             if unmet:
                 log.info("%d branch ends do not meet their junction: opened", len(unmet))
                 skel = with_ends_opened(skel, unmet)
-            # A tube in three pieces or more is joined a pair at a time.
+            # A tube in three pieces or more is joined a pair at a time.  A pair refused is not tried
+            # again in this round: its two fits are the same, and so is its joined fit but where a
+            # neighbour joined since takes some of its points.  (After branches are dropped, the
+            # next round tries it again: a dropped branch may have held points it lacked.)
+            refused = []
             while True:
                 before = len(fits)
-                skel, fits = _joined_pieces(fits, skel, job, client)
+                skel, fits, bad = _joined_pieces(fits, skel, job, client, tuple(refused))
+                refused += bad
                 if len(fits) == before:
                     break
         inside = _inside_others(fits, skel)
