@@ -126,18 +126,20 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
         A new array; the input is not changed.
     """
     n = len(points)
-    rows = np.repeat(np.arange(n), neighbours.shape[1])
-    cols = neighbours.ravel()
-    length = np.linalg.norm(points[rows] - points[cols], axis=1)
-    reach = length.reshape(n, -1).max(axis=1)  # distance to each point's farthest listed neighbour
+    # Row by row, in threads (:func:`canalsurf._rows.by_rows`): each link's length, each point's reach
+    # (the distance to its farthest listed neighbour).
+    length = by_rows(lambda r: np.linalg.norm(points[r, None, :] - points[neighbours[r]], axis=2), n)
+    reach = length.max(axis=1)
     # A link far longer than the neighbourhoods at both of its ends bridges two surfaces (a sparse
     # floor under a pipe lists the pipe's underside among its neighbours): orientation must not
     # travel across it -- the normals there are parallel, so the spanning tree would prefer it.
-    keep = (rows != cols) & (length <= ORIENT_LINK_REACH * np.minimum(reach[rows], reach[cols]))
-    rows, cols = rows[keep], cols[keep]
+    rows, slot = np.nonzero((neighbours != np.arange(n)[:, None])
+                         & (length <= ORIENT_LINK_REACH * np.minimum(reach[:, None], reach[neighbours])))
+    cols = neighbours[rows, slot]
     # Weight 1 - |cos| prefers links between nearly parallel normals; the floor keeps zero-weight
     # links (which sparse graphs would drop) in the graph.
-    weight = 1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-6
+    weight = by_rows(lambda e: 1.0 - np.abs(np.einsum("ij,ij->i", normals[rows[e]], normals[cols[e]])) + 1e-6,
+                     len(rows))
     graph = coo_matrix((weight, (rows, cols)), shape=(n, n)).tocsr()
     tree = minimum_spanning_tree(graph.maximum(graph.T))
     n_parts, label = connected_components(tree, directed=False)
@@ -156,7 +158,8 @@ def orient_normals(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarr
     flip[flip == 0] = 1.0
     oriented = normals * _propagated_signs(parent, flip)[:, None]
 
-    part_vote = np.bincount(label[rows], weights=_divergence(points, oriented, rows, cols), minlength=n_parts)
+    turn = by_rows(lambda e: _divergence(points, oriented, rows[e], cols[e]), len(rows))
+    part_vote = np.bincount(label[rows], weights=turn, minlength=n_parts)
     oriented *= np.where(part_vote[label] < 0, -1.0, 1.0)[:, None]
     return oriented
 
