@@ -171,12 +171,11 @@ def test_what_a_pass_hands_on_is_what_lies_on_no_surface_it_found():
     """A coarse pass that shrank a rack of thin pipes to one fat branch across them: the thin pipe's points
     inside the fat branch's radius are explained by it, but lie on no surface it found, so a finer pass
     gets them; the fat tube's own surface points are explained either way."""
-    from types import SimpleNamespace
-
-    from canalsurf.pipeline import _explained
+    from canalsurf.pipeline import _explained, _Pass
 
     x = np.linspace(0, 20, 401)
-    run = SimpleNamespace(thin=np.c_[x, 0 * x, 0 * x], r_i=np.full(len(x), 1.6), p={"H": 0.5})
+    run = _Pass(scan=None, nrm=None, r0=1.6, p={"H": 0.5}, curved=None, kappa=None, sr=None, kept=None,
+                thin=np.c_[x, 0 * x, 0 * x], r_i=np.full(len(x), 1.6))
     angle = np.linspace(0, 2 * np.pi, 40, endpoint=False)
     ring = np.c_[np.zeros_like(angle), np.cos(angle), np.sin(angle)]
     fat = np.concatenate([ring * [1, 1.6, 1.6] + [t, 0, 0] for t in (5, 10, 15)])

@@ -14,6 +14,7 @@ import math
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 from scipy.interpolate import BSpline
@@ -278,6 +279,17 @@ class _Pass:
     r_i: np.ndarray
     pool: np.ndarray | None = None  # indices of the scan's points the pass worked on (None: all)
 
+    @cached_property
+    def nodes(self) -> tuple | None:
+        """A KD-tree of the nodes of the skeleton of the thin set, and their radii (None: it has none).
+        Which points the pass explains is asked several times (:func:`_explained`)."""
+        try:
+            skel = skeletonize(self.thin, self.r_i, spacing=C.ORDER_VOXEL_PER_H * self.p["H"])
+        except ReconstructionError:
+            return None
+        return (cKDTree(np.concatenate([b.points for b in skel.branches])),
+                np.concatenate([b.radius for b in skel.branches]))
+
 
 def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbours: str, quantum: float,
                   timer: _Timer, fallback: bool, widest: float = 1.0) -> _Pass:
@@ -401,13 +413,10 @@ def _explained(points: np.ndarray, run: _Pass, *, on_surface: bool = False) -> n
     What a pass hands on to a finer one is what is not on a surface it found: at a coarse scale a rack of
     thin pipes can shrink to one fat branch across them, which is no tube but holds their points inside.
     """
-    try:
-        skel = skeletonize(run.thin, run.r_i, spacing=C.ORDER_VOXEL_PER_H * run.p["H"])
-    except ReconstructionError:
+    if run.nodes is None:
         return np.zeros(len(points), bool)
-    nodes = np.concatenate([b.points for b in skel.branches])
-    node_r = np.concatenate([b.radius for b in skel.branches])
-    d, i = cKDTree(nodes).query(points, workers=-1)
+    tree, node_r = run.nodes
+    d, i = tree.query(points, workers=-1)
     if on_surface:
         return np.abs(d - node_r[i]) < (EXPLAINED_RADII - 1) * node_r[i]
     return d < EXPLAINED_RADII * node_r[i]
