@@ -52,7 +52,7 @@ def _around(points: np.ndarray, spine, t: np.ndarray, per_stretch: int):
     order = np.argsort(t, kind="stable")
     bins = np.empty(len(t), int)
     bins[order] = np.arange(len(t)) * n_bins // len(t)
-    mid = np.array([np.median(t[bins == b]) for b in range(n_bins)])
+    mid = _sorted_medians(t[order], np.bincount(bins, minlength=n_bins))
     tangent = spine.derivative()(mid)
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     helper = np.where(np.abs(tangent[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
@@ -62,6 +62,14 @@ def _around(points: np.ndarray, spine, t: np.ndarray, per_stretch: int):
     d = points - spine(t)
     angle = np.arctan2(np.einsum("ij,ij->i", d, e2[bins]), np.einsum("ij,ij->i", d, e1[bins]))
     return bins, angle, n_bins
+
+
+def _sorted_medians(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The median of each run of ``counts`` consecutive sorted ``values`` (each run at least one long), as
+    ``np.median`` gives it: the middle value, or the mean of the two middle ones."""
+    start = np.cumsum(counts) - counts
+    low, high = values[start + (counts - 1) // 2], values[start + counts // 2]
+    return np.where(counts % 2 == 1, low, (low + high) / 2)
 
 
 def angular_coverage(points: np.ndarray, spine, t: np.ndarray) -> np.ndarray:
@@ -89,8 +97,10 @@ def angular_coverage(points: np.ndarray, spine, t: np.ndarray) -> np.ndarray:
     if n_bins == 0:
         return np.empty(0)
     cover = np.empty(n_bins)
+    by_bin = angle[np.lexsort((angle, bins))]
+    ends = np.cumsum(np.bincount(bins, minlength=n_bins))
     for b in range(n_bins):
-        a = np.sort(angle[bins == b])
+        a = by_bin[ends[b - 1] if b else 0:ends[b]]
         m = int(COVERAGE_STRAY_SHARE * len(a))
         around = np.concatenate([a, a[: m + 1] + 2 * np.pi])
         widest = np.max(around[m + 1: m + 1 + len(a)] - around[: len(a)])
@@ -321,17 +331,14 @@ def roundness(points: np.ndarray, spine, t: np.ndarray, residual: np.ndarray) ->
         return 0.0
     sector = np.minimum(((angle + np.pi) / (2 * np.pi) * ROUNDNESS_SECTORS).astype(int), ROUNDNESS_SECTORS - 1)
     cell = bins * ROUNDNESS_SECTORS + sector
-    medians, counts = [], []
-    for c in np.unique(cell):
-        r = residual[cell == c]
-        if len(r) >= ROUNDNESS_MIN_CELL:
-            medians.append(np.median(r))
-            counts.append(len(r))
-    if not medians:
+    counts = np.unique(cell, return_counts=True)[1]
+    medians = _sorted_medians(residual[np.lexsort((residual, cell))], counts)
+    medians, counts = medians[counts >= ROUNDNESS_MIN_CELL], counts[counts >= ROUNDNESS_MIN_CELL]
+    if not len(medians):
         return 0.0
     # Noise alone leaves each cell's median off by about sqrt(pi / 2) sigma / sqrt(n): what is left
     # after taking that out is the shape's own departure from round (a sparse, noisy scan's cells would
     # otherwise read as out of round).
     sigma = 1.4826 * np.median(np.abs(residual - np.median(residual)))
-    excess = np.mean(np.square(medians)) - np.mean(np.pi / 2 * sigma**2 / np.asarray(counts))
+    excess = np.mean(np.square(medians)) - np.mean(np.pi / 2 * sigma**2 / counts)
     return float(np.sqrt(max(excess, 0.0)))
