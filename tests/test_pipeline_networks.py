@@ -293,7 +293,7 @@ def test_the_first_estimate_takes_the_points_past_a_thin_set_that_ends_with_scat
     points = np.column_stack([np.cos(angle), np.sin(angle), height])
     guess = _first_guess(branch)
     assert guess["radius"](1.0) > 1.1  # the slope the test is about
-    taken = _assign(points, _Estimates([guess], skel), _Fittable(points, np.ones(len(points), bool)), 0)
+    taken = _assign(points, _Estimates(skel, {}), _Fittable(points, np.ones(len(points), bool)), 0)
     past = (points[:, 2] > 6.0) & (points[:, 2] < 6.0 + ASSIGN_END_RADII)
     assert np.isin(np.flatnonzero(past), taken).mean() > 0.95
 
@@ -303,7 +303,7 @@ def test_a_junction_of_other_tubes_takes_no_points_of_a_pipe_that_passes_it():
     fat branch at a junction near the pipe's end (a coarse pass's bridge across a rack of a plant so): the
     junction's reach takes 3.15 round it.  Its own branches' points there go to none, but the pipe, which
     does not meet there, keeps its own; once they went to none, its fit stopped 3.3 short of its end."""
-    from canalsurf.pipeline import JUNCTION_EXCLUSION_RADII, _assign, _Estimates, _Fittable, _first_guess
+    from canalsurf.pipeline import JUNCTION_EXCLUSION_RADII, _assign, _Estimates, _Fittable
     from canalsurf.skeleton import Skeleton, SkeletonBranch
 
     def branch(a, b, r, ends=(None, None)):
@@ -322,7 +322,7 @@ def test_a_junction_of_other_tubes_takes_no_points_of_a_pipe_that_passes_it():
     skel = Skeleton(branches, junction[None], 0.5)
     rng = np.random.default_rng(0)
     points = np.vstack([cylinder(0.0, 0.5, rng), cylinder(2.55, 1.3, rng)])
-    estimates = _Estimates([_first_guess(b) for b in branches], skel)
+    estimates = _Estimates(skel, {})
     reach = estimates.junction_reach[0]
     assert reach == pytest.approx(JUNCTION_EXCLUSION_RADII * 2.1, rel=0.05)
     fittable = _Fittable(points, np.ones(len(points), bool))
@@ -334,13 +334,47 @@ def test_a_junction_of_other_tubes_takes_no_points_of_a_pipe_that_passes_it():
         assert not np.isin(np.flatnonzero(near), _assign(points, estimates, fittable, i)).any()
 
 
+def test_estimates_are_made_once_per_branch_and_open_ends():
+    """A skeleton remade with a branch dropped keeps the others' estimates, renumbered; a branch whose end
+    was opened (the same arrays) gets a new one, continued past that end; each is what making it afresh
+    gives."""
+    from dataclasses import replace
+
+    from canalsurf.pipeline import _Estimates
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    def leg(a, b, r, ends):
+        return SkeletonBranch(np.linspace(a, b, 40), np.full(40, 4.0), np.full(40, r), ends)
+
+    junction = np.array([10.0, 0.0, 0.0])
+    branches = [leg([0.0, 0.0, 0.0], junction, 1.0, (None, 0)), leg(junction, [20.0, 0.0, 0.0], 1.0, (0, None)),
+                leg(junction, [10.0, 8.0, 0.0], 0.6, (0, None))]
+    made = {}
+    first = _Estimates(Skeleton(branches, junction[None], 0.5), made)
+    dropped = Skeleton([branches[0], branches[2]], junction[None], 0.5)
+    opened = Skeleton([replace(branches[0], ends=(None, None)), branches[1]], junction[None], 0.5)
+    t = np.linspace(0.0, 1.0, 50)
+    # (skeleton, {its branch: the first skeleton's branch whose estimate it keeps})
+    for skel, kept in ((dropped, {0: 0, 1: 2}), (opened, {1: 1})):
+        again, fresh = _Estimates(skel, made), _Estimates(skel, {})
+        for i in range(len(skel.branches)):
+            model, box, _, band = again.model(i)
+            assert model.id == i
+            assert (model.spine is first.model(kept.get(i, i))[0].spine) == (i in kept)
+            np.testing.assert_array_equal(model.spine(t), fresh.model(i)[0].spine(t))
+            np.testing.assert_array_equal(box, fresh.model(i)[1])
+            assert band == fresh.model(i)[3]
+    assert opened.branches[0].points is branches[0].points
+    assert _Estimates(opened, made).model(0)[1][1, 0] > first.model(0)[1][1, 0]  # continued past x = 10
+
+
 def test_a_branch_takes_the_points_it_would_take_were_its_whole_box_classified():
     """Two pipes side by side along a diagonal (radii 0.5 and 1.3, axes 2.55 apart), their points scattered
     by up to 0.35 off the surface, past the thin one's assign cut (0.25): the box of the thin one's band
     holds many of the fat one's points.  Only the points within the band's reach of its spine are
     classified for it; it must take exactly those that classifying all of its box gives it."""
     from canalsurf.network import classify_points
-    from canalsurf.pipeline import ASSIGN_RADII, _assign, _Estimates, _Fittable, _first_guess
+    from canalsurf.pipeline import ASSIGN_RADII, _assign, _Estimates, _Fittable
     from canalsurf.skeleton import Skeleton, SkeletonBranch
 
     along, across = np.array([1.0, 1.0, 0.0]) / np.sqrt(2), np.array([1.0, -1.0, 0.0]) / np.sqrt(2)
@@ -355,7 +389,7 @@ def test_a_branch_takes_the_points_it_would_take_were_its_whole_box_classified()
         clouds.append(offset * across + s[:, None] * along
                       + rho[:, None] * (np.cos(angle)[:, None] * across + np.sin(angle)[:, None] * up))
     points = np.vstack(clouds)
-    estimates = _Estimates([_first_guess(b) for b in branches], Skeleton(branches, np.empty((0, 3)), 0.5))
+    estimates = _Estimates(Skeleton(branches, np.empty((0, 3)), 0.5), {})
     fittable = _Fittable(points, np.ones(len(points), bool))
     box = fittable.in_box(points, estimates.model(0)[1])
     assert (box >= 20_000).sum() > 5_000  # the fat pipe's points in the thin one's box
@@ -386,7 +420,8 @@ def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     guess = _first_guess(branch)
     tangent = guess["spine"].derivative()(1.0)
     assert tangent[2] < 0.5 * np.linalg.norm(tangent)  # the hook the test is about
-    job = {"points": points, "estimates": _Estimates([guess], skel), "fittable": _Fittable(points, np.ones(20_000, bool)),
+    job = {"points": points, "estimates": _Estimates(skel, {}),
+           "fittable": _Fittable(points, np.ones(20_000, bool)),
            "kappa": np.ones(20_000), "kind": "pipe", "refine": True, "noise": 0.005, "quantum": 0.0}
     fit = _fit_one(0, job)
     assert not isinstance(fit, str), fit

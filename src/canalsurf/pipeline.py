@@ -808,19 +808,32 @@ def _stand_in(g: dict, branch: SkeletonBranch, i: int) -> CanalModel:
 
 class _Estimates:
     """The branches' first tube estimates (``guesses``), each as a :func:`_stand_in` with the box its
-    assign band reaches, made once per estimate; and how far round each junction points go to no branch."""
+    assign band reaches, made once per estimate; and how far round each junction points go to no branch.
 
-    def __init__(self, guesses: list, skel: Skeleton):
-        self.guesses, self.skel, self._made = list(guesses), skel, {}
+    ``made`` (shared by the estimates of one network's fit) keeps each branch's estimate by its arrays
+    and which of its ends are open, all an estimate depends on: a skeleton with pieces joined or
+    branches dropped keeps the other branches' arrays, and their estimates are not made again.
+    """
+
+    def __init__(self, skel: Skeleton, made: dict):
+        self.guesses, self.skel, self._made = [], skel, {}
+        for i, b in enumerate(skel.branches):
+            key = (id(b.points), id(b.weights), id(b.radius), b.closed, b.ends[0] is None, b.ends[1] is None)
+            if key in made:
+                _, guess, (model, *rest) = made[key]
+                self.guesses.append(guess)
+                self._made[i] = (replace(model, id=i), *rest)
+            else:
+                # Made here, before the fits are spread over processes: each would otherwise make them all
+                # again.  The branch is kept with them, so that its arrays' ids are not taken by others.
+                self.guesses.append(_first_guess(b))
+                made[key] = (b, self.guesses[i], self.model(i))
         largest = np.zeros(len(skel.junctions))
-        for g, b in zip(guesses, skel.branches):
+        for g, b in zip(self.guesses, skel.branches):
             for j in b.ends:
                 if j is not None:
                     largest[j] = max(largest[j], g["eq6"])
         self.junction_reach = JUNCTION_EXCLUSION_RADII * largest
-        # Made here, before the fits are spread over processes: each would otherwise make them all again.
-        for i in range(len(self.guesses)):
-            self.model(i)
 
     def replaced(self, i: int, guess: dict) -> _Estimates:
         """These estimates with branch ``i``'s replaced (the others' models are kept)."""
@@ -1501,10 +1514,12 @@ def _spans(fit: _BranchFit, first: np.ndarray, last: np.ndarray) -> bool:
     return bool(cKDTree(spine).query(np.array([first, last]))[0].max() <= END_TRIM_RADII * fit.eq6)
 
 
-def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, refused: tuple = ()) -> tuple[Skeleton, list, list]:
+def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, made: dict,
+                   refused: tuple = ()) -> tuple[Skeleton, list, list]:
     """The skeleton and fits with each two pieces of one tube (:func:`_pieces_of_one_tube`, but for the
     pairs ``refused``) joined and fitted as one branch -- where that fit is a tube; else both pieces stay
-    as they were.  Also the pairs refused now, as ``(fit, end, fit, end)``."""
+    as they were.  Also the pairs refused now, as ``(fit, end, fit, end)``.  ``made``: see
+    :class:`_Estimates`."""
     pairs = _pieces_of_one_tube(fits, skel, refused)
     if not pairs:
         return skel, fits, []
@@ -1512,7 +1527,7 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, refused: tuple
     outward = {key: d for key, (_, d) in ends.items()}
     joined, origin = with_ends_joined(skel, pairs, outward)
     todo = [k for k, o in enumerate(origin) if o is None]
-    job = {**job, "estimates": _Estimates([_first_guess(b) for b in joined.branches], joined)}
+    job = {**job, "estimates": _Estimates(joined, made)}
     # A joined branch takes the place of the first of its pair, so they come in that order.
     by_first = dict(zip(sorted(a for (a, _), _ in pairs), _fit_all(todo, job, client)))
     # Kept where the one fit is a tube, reaches the far ends of both, and fits its points about as closely
@@ -1551,8 +1566,9 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     fits = [None] * len(skel.branches)
     fittable = _Fittable(points, curved)
     cut = set()  # branches cut to their part outside other tubes
+    made = {}  # the branches' first estimates (see _Estimates)
     for round_ in range(MAX_FIT_ROUNDS):
-        estimates = _Estimates([_first_guess(b) for b in skel.branches], skel)
+        estimates = _Estimates(skel, made)
         job = {"points": points, "estimates": estimates, "fittable": fittable, "kappa": kappa, "kind": kind,
                "refine": refine, "noise": noise, "quantum": quantum}
         todo = [i for i, f in enumerate(fits) if f is None]
@@ -1573,7 +1589,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             refused = []
             while True:
                 before = len(fits)
-                skel, fits, bad = _joined_pieces(fits, skel, job, client, tuple(refused))
+                skel, fits, bad = _joined_pieces(fits, skel, job, client, made, tuple(refused))
                 refused += bad
                 if len(fits) == before:
                     break
