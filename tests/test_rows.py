@@ -43,6 +43,24 @@ def test_every_pair_within_reach_lies_in_one_slab(threads, parts):
     assert (member[pairs[:, 0]] & member[pairs[:, 1]]).any(axis=1).all()
 
 
+def test_a_process_among_processes_works_on_one_thread(threads, monkeypatch):
+    threads(4)
+    monkeypatch.setattr(_rows, "_most_threads", 0)  # restored after the test
+    seen = []
+
+    def rows(r):
+        seen.append((r.start, r.stop))
+        return np.arange(r.start, r.stop)
+
+    np.testing.assert_array_equal(_rows.by_rows(rows, 1000), np.arange(1000))
+    assert sorted(seen) == [(0, 250), (250, 500), (500, 750), (750, 1000)]
+    _rows.one_thread()
+    seen.clear()
+    np.testing.assert_array_equal(_rows.by_rows(rows, 1000), np.arange(1000))
+    assert seen == [(0, 1000)]
+    assert len(_rows.slabs(np.random.default_rng(SEED).normal(size=(1000, 3)), 0.1)) == 1
+
+
 def test_one_slab_below_its_least_size():
     points = np.random.default_rng(SEED).normal(size=(_rows.MIN_SLAB_POINTS * 2 - 1, 3))
     assert [len(rows) for rows in _rows.slabs(points, 0.1)] == [len(points)]
@@ -57,3 +75,20 @@ def test_normals_and_curvature_are_the_same_in_threads(threads):
     threads(3)
     np.testing.assert_array_equal(estimate_normals(tube.points), normals)
     np.testing.assert_array_equal(principal_curvature(tube.points, normals), kappa)
+
+
+@pytest.mark.parametrize("name", ["fig9-pipe", "fig14-canal"])
+def test_footpoints_are_the_same_in_threads(threads, monkeypatch, name):
+    """Each point's footpoint search depends on that point alone: split over threads, the parameters and
+    distances are the same to the last bit, searched afresh or followed from a start."""
+    from canalsurf import refine
+
+    tube = synth.make_tube(name, n=3000, rng=SEED)
+    t, d = refine.footpoints(tube.points, tube.spine, tube.radius, closed=False)
+    again = refine.footpoints(tube.points, tube.spine, tube.radius, closed=False, start=np.clip(t + 1e-3, 0, 1))
+    threads(3)
+    monkeypatch.setattr(refine, "FOOTPOINT_ROWS", 100)
+    for want, got in zip((t, d, *again), (*refine.footpoints(tube.points, tube.spine, tube.radius, closed=False),
+                                          *refine.footpoints(tube.points, tube.spine, tube.radius, closed=False,
+                                                             start=np.clip(t + 1e-3, 0, 1)))):
+        np.testing.assert_array_equal(got, want)

@@ -11,11 +11,23 @@ import numpy as np
 MIN_ROWS = 50_000
 #: Points per slab at least (:func:`slabs`): a KD-tree's build and search gain from threads sooner.
 MIN_SLAB_POINTS = 10_000
+#: Threads at most (0: one per core; see :func:`one_thread`).
+_most_threads = 0
 
 
 def cores() -> int:
     """The cores this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
+
+
+def one_thread() -> None:
+    """Do this process's work on one thread: it is one of several processes that fill the cores."""
+    global _most_threads
+    _most_threads = 1
+
+
+def _threads() -> int:
+    return _most_threads or cores()
 
 
 def in_threads(func, parts: list) -> list:
@@ -26,13 +38,14 @@ def in_threads(func, parts: list) -> list:
         return list(pool.map(func, parts))
 
 
-def by_rows(func, n: int) -> np.ndarray:
-    """``func(rows)`` over consecutive slices ``rows`` of ``range(n)``, in threads, joined in order.
+def by_rows(func, n: int, least: int | None = None) -> np.ndarray:
+    """``func(rows)`` over consecutive slices ``rows`` of ``range(n)``, at least ``least`` rows each
+    (default MIN_ROWS), in threads, joined in order.
 
     ``func`` must give each row a result that depends on that row alone (its first axis): the result
     is then the same, bit for bit, however the rows are split.
     """
-    cuts = np.linspace(0, n, max(1, min(cores(), n // MIN_ROWS)) + 1).astype(int)
+    cuts = np.linspace(0, n, max(1, min(_threads(), n // (least or MIN_ROWS))) + 1).astype(int)
     return np.concatenate(in_threads(func, [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:])]))
 
 
@@ -43,7 +56,7 @@ def slabs(points: np.ndarray, reach: float) -> list:
     A slab runs from its cut to the next cut plus ``reach``: the nearer point of two in different
     slabs, taken along the axis, lies in the other's.
     """
-    parts = max(1, min(cores(), len(points) // MIN_SLAB_POINTS))
+    parts = max(1, min(_threads(), len(points) // MIN_SLAB_POINTS))
     if parts == 1:
         return [np.arange(len(points))]
     x = points[:, int(np.argmax(np.ptp(points, axis=0)))]

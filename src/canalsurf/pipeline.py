@@ -21,7 +21,7 @@ from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
 from . import constants as C
-from ._rows import cores as _cores
+from ._rows import cores as _cores, one_thread
 from ._validate import MIN_POINTS, as_normals, as_points, choice, in_range, positive
 from .errors import InputError, ReconstructionError
 from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
@@ -1286,6 +1286,7 @@ def _quiet_worker() -> None:
 
     # Ctrl-C is the parent's to handle (it cleans up and exits; the workers then find their queue closed).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    one_thread()  # the workers fill the cores
 
 
 def _fit_all(tasks: list, job: dict, client=None) -> list:

@@ -23,6 +23,7 @@ from scipy.linalg import eigh
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
+from ._rows import by_rows
 from .constants import MIN_SIGMA_PER_RADIUS, OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
 from .errors import ReconstructionError
 from .spine import (arclength_reparametrize, constant_spline, curve_length, local_basis, n_coefficients,
@@ -74,6 +75,8 @@ FOOTPOINT_COARSE = 256
 #: computes exact distances only to the few runs that can hold its best sample.  Each run is one pass of
 #: array operations over the points that need it: fewer, longer runs cost less than the extra distances.
 FOOTPOINT_RUN = 16
+#: Points per thread of the footpoint search at least (:func:`canalsurf._rows.by_rows`).
+FOOTPOINT_ROWS = 10_000
 #: Points per batch of the canal search: bounds its scratch memory (about 40 MB).
 FOOTPOINT_BATCH = 1 << 16
 #: An open spine whose tangent at an end is turned by more than this from its chord over the last
@@ -197,6 +200,23 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: b
     radii = radius(ts)
     # A constant radius evaluates to values that differ in the last bits; that is still a pipe.
     pipe = np.ptp(radii) <= PIPE_SPREAD * np.abs(radii).max()
+    d1, d2 = spine.derivative(1), spine.derivative(2)
+    r1, r2 = radius.derivative(1), radius.derivative(2)
+
+    def search(rows):
+        return _footpoints(points[rows], spine, radius, (d1, d2, r1, r2), closed=closed, pipe=pipe, ts=ts,
+                           start=None if start is None else start[rows])
+
+    if len(points) < 2 * FOOTPOINT_ROWS:
+        return search(slice(None))
+    # Each point's footpoint depends on that point alone: slices of the points are searched in threads.
+    found = by_rows(lambda rows: np.column_stack(search(rows)), len(points), FOOTPOINT_ROWS)
+    return found[:, 0].copy(), found[:, 1].copy()
+
+
+def _footpoints(points, spine, radius, derivatives, *, closed, pipe, ts, start):
+    """:func:`footpoints`, with the spine's and radius's first two ``derivatives`` and ``ts``, the
+    samples a pipe's points start from."""
     if start is not None:
         t = np.array(start, dtype=float)
     elif pipe:
@@ -205,8 +225,7 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: b
         # On a canal the start is the sample minimising |P - C| - r, not the nearest centre.
         ts = np.linspace(0.0, 1.0, FOOTPOINT_COARSE)
         t = ts[_envelope_start(points, spine(ts), radius(ts))]
-    d1, d2 = spine.derivative(1), spine.derivative(2)
-    r1, r2 = radius.derivative(1), radius.derivative(2)
+    d1, d2, r1, r2 = derivatives
     active = np.ones(len(points), bool)
     for _ in range(FOOTPOINT_NEWTON_STEPS):
         ta = t[active]
