@@ -1584,9 +1584,9 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                 log.info("%d branch ends do not meet their junction: opened", len(unmet))
                 skel = with_ends_opened(skel, unmet)
             # A tube in three pieces or more is joined a pair at a time.  A pair refused is not tried
-            # again in this round: its two fits are the same, and so is its joined fit but where a
-            # neighbour joined since takes some of its points.  (After branches are dropped, the
-            # next round tries it again: a dropped branch may have held points it lacked.)
+            # again in this round: its pieces' fits are unchanged, and so would its joined fit be, unless
+            # a neighbour joined since took some of its points.  (After branches are dropped, the next
+            # round tries it again: a dropped branch may have held points it lacked.)
             refused = []
             while True:
                 before = len(fits)
