@@ -54,11 +54,13 @@ def test_a_process_among_processes_works_on_one_thread(threads, monkeypatch):
 
     np.testing.assert_array_equal(_rows.by_rows(rows, 1000), np.arange(1000))
     assert sorted(seen) == [(0, 250), (250, 500), (500, 750), (750, 1000)]
+    assert (_rows.workers(1000), _rows.workers(250), _rows.workers(199)) == (4, 2, 1)
     _rows.one_thread()
     seen.clear()
     np.testing.assert_array_equal(_rows.by_rows(rows, 1000), np.arange(1000))
     assert seen == [(0, 1000)]
     assert len(_rows.slabs(np.random.default_rng(SEED).normal(size=(1000, 3)), 0.1)) == 1
+    assert _rows.workers(10**9) == 1
 
 
 def test_one_slab_below_its_least_size():

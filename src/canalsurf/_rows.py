@@ -26,8 +26,10 @@ def one_thread() -> None:
     _most_threads = 1
 
 
-def _threads() -> int:
-    return _most_threads or cores()
+def workers(n: int, least: int | None = None) -> int:
+    """Threads for work on ``n`` rows, ``least`` (default MIN_ROWS) each at least, and no more than the
+    process may use (see :func:`one_thread`): also scipy's ``workers`` for a KD-tree query of ``n`` points."""
+    return max(1, min(_most_threads or cores(), n // (least or MIN_ROWS)))
 
 
 def in_threads(func, parts: list) -> list:
@@ -45,7 +47,7 @@ def by_rows(func, n: int, least: int | None = None) -> np.ndarray:
     ``func`` must give each row a result that depends on that row alone (its first axis): the result
     is then the same, bit for bit, however the rows are split.
     """
-    cuts = np.linspace(0, n, max(1, min(_threads(), n // (least or MIN_ROWS))) + 1).astype(int)
+    cuts = np.linspace(0, n, workers(n, least) + 1).astype(int)
     return np.concatenate(in_threads(func, [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:])]))
 
 
@@ -56,7 +58,7 @@ def slabs(points: np.ndarray, reach: float) -> list:
     A slab runs from its cut to the next cut plus ``reach``: the nearer point of two in different
     slabs, taken along the axis, lies in the other's.
     """
-    parts = max(1, min(_threads(), len(points) // MIN_SLAB_POINTS))
+    parts = workers(len(points), MIN_SLAB_POINTS)
     if parts == 1:
         return [np.arange(len(points))]
     x = points[:, int(np.argmax(np.ptp(points, axis=0)))]

@@ -22,9 +22,10 @@ from scipy import sparse
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
+from ._rows import workers
 from .errors import InputError
 from .model import FORMAT, CanalModel, model_from_dict, _plain
-from .refine import _workers, footpoints
+from .refine import footpoints
 from .spine import curve_length, polyline_arclength, pspline_fit, sample_arclength
 
 __all__ = ["Network", "Junction", "classify_points", "network_mesh", "network_from_dict",
@@ -214,7 +215,7 @@ def classify_points(points: np.ndarray, branches: list, *, cut: list | None = No
         # the spine: |P - C(t)| - r(t) >= (distance to the nearest sample) - reach.
         reach.append(length / (m - 1) / 2 + float(b.radius(np.linspace(0.0, 1.0, 2 * m)).max()))
     k = min(CLASSIFY_NEIGHBOURS, sum(len(s) for s in samples))
-    _, idx = cKDTree(np.concatenate(samples)).query(points, k=k, workers=_workers(points))
+    _, idx = cKDTree(np.concatenate(samples)).query(points, k=k, workers=workers(len(points)))
     candidates = np.concatenate(owner)[idx.reshape(n, -1)]
     best = np.full(n, np.inf)
     distance = np.full(n, np.inf)
@@ -264,7 +265,7 @@ def classify_points(points: np.ndarray, branches: list, *, cut: list | None = No
         if not len(ball):
             continue
         bound = np.where(best[ball] <= limit, reach[i] + limit, np.inf) if far else reach[i] + limit
-        near = cKDTree(samples[i]).query(points[ball], workers=_workers(ball))[0]
+        near = cKDTree(samples[i]).query(points[ball], workers=workers(len(ball)))[0]
         near[near > bound] = np.inf
         try_branch(i, np.sort(ball[near - reach[i] < best[ball]]))
     on = (label >= 0) & (best <= cuts[np.maximum(label, 0)])

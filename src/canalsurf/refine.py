@@ -23,7 +23,7 @@ from scipy.linalg import eigh
 from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
-from ._rows import by_rows
+from ._rows import by_rows, workers
 from .constants import MIN_SIGMA_PER_RADIUS, OUTLIER_SIGMAS, REFINE_ITERATIONS, SMOOTHING
 from .errors import ReconstructionError
 from .spine import (arclength_reparametrize, constant_spline, curve_length, local_basis, n_coefficients,
@@ -65,8 +65,6 @@ RIDGE = 1e-8
 TANGENT_STIFFNESS = 0.01
 #: Levenberg-Marquardt damping factors tried in turn until the cost falls.
 LM_DAMPING = (1e-3, 1e-1, 1.0, 10.0, 100.0)
-#: Clouds at least this large query their KD-trees on all cores.
-PARALLEL_MIN_POINTS = 50_000
 #: Samples of the spine the footpoint search starts from; on a canal a coarser set, searched
 #: exhaustively for the least ``|P - C| - r`` (Newton refines the start either way).
 FOOTPOINT_SAMPLES = 1024
@@ -88,11 +86,6 @@ HOOK_DEGREES = 45.0
 #: A radius whose samples spread by less than this share of its size is a constant one that
 #: rounding made uneven (a pipe, searched by its nearest centre).
 PIPE_SPREAD = 1e-12
-
-
-def _workers(points: np.ndarray) -> int:
-    """Threads for a KD-tree query: starting them costs more than it saves on small clouds."""
-    return -1 if len(points) >= PARALLEL_MIN_POINTS else 1
 
 
 def robust_sigma(residual: np.ndarray) -> float:
@@ -117,7 +110,7 @@ def _envelope_start(points: np.ndarray, centres: np.ndarray, radii: np.ndarray) 
     run = np.minimum(np.arange(n_runs * FOOTPOINT_RUN), len(centres) - 1).reshape(n_runs, -1)
     mid = centres[run].mean(axis=1)
     reach = np.linalg.norm(centres[run] - mid[:, None], axis=2).max(axis=1) + radii[run].max(axis=1)
-    near_d, near = cKDTree(centres).query(points, workers=_workers(points))
+    near_d, near = cKDTree(centres).query(points, workers=workers(len(points)))
     best = near.copy()
     for lo in range(0, len(points), FOOTPOINT_BATCH):
         p, j = points[lo:lo + FOOTPOINT_BATCH], near[lo:lo + FOOTPOINT_BATCH]
@@ -148,7 +141,7 @@ def _polyline_start(points: np.ndarray, ts: np.ndarray, centres: np.ndarray) -> 
     it: the start is then off by the square of the sample spacing, not by the spacing, which saves
     the footpoint search a Newton step.
     """
-    near = cKDTree(centres).query(points, workers=_workers(points))[1]
+    near = cKDTree(centres).query(points, workers=workers(len(points)))[1]
     best_t, best_d = ts[near], np.full(len(points), np.inf)
     for a in (np.maximum(near - 1, 0), np.minimum(near, len(ts) - 2)):
         chord = centres[a + 1] - centres[a]
