@@ -200,7 +200,7 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: b
         return _footpoints(points[rows], spine, radius, (d1, d2, r1, r2), closed=closed, pipe=pipe, ts=ts,
                            start=None if start is None else start[rows])
 
-    if len(points) < 2 * FOOTPOINT_ROWS:
+    if workers(len(points), FOOTPOINT_ROWS) == 1:
         return search(slice(None))
     # Each point's footpoint depends on that point alone: slices of the points are searched in threads.
     found = by_rows(lambda rows: np.column_stack(search(rows)), len(points), FOOTPOINT_ROWS)
