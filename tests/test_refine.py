@@ -8,7 +8,8 @@ from scipy.interpolate import BSpline
 
 from canalsurf import synth
 from canalsurf.metrics import closest_point_distance, radius_error
-from canalsurf.refine import SMOOTHING, extended, footpoints, refine, robust_sigma
+from canalsurf.refine import (GCV_GAMMA, GCV_GRID, SMOOTHING, _gcv_smoothing, extended, footpoints, refine,
+                              robust_sigma)
 from canalsurf.spine import constant_spline, curve_length
 
 SEED = 29
@@ -218,9 +219,7 @@ def test_a_pipe_fit_from_an_estimate_whose_dense_end_hooks_is_right(seed):
 def _smoothed_line(gamma, seeds, monkeypatch):
     """Penalty weight (log10, in floors) and RMS error of the spline :func:`_gcv_smoothing` chooses for
     noisy samples of a line (2,000 points, 20 cubic intervals, noise 0.02), one row per seed."""
-    import canalsurf.refine as refine_module
-
-    monkeypatch.setattr(refine_module, "GCV_GAMMA", gamma)
+    monkeypatch.setattr("canalsurf.refine.GCV_GAMMA", gamma)
     t = np.r_[[0.0] * 3, np.linspace(0.0, 1.0, 21), [1.0] * 3]
     rows = []
     for seed in seeds:
@@ -230,8 +229,7 @@ def _smoothed_line(gamma, seeds, monkeypatch):
         D = np.diff(np.eye(m), 2, axis=0)
         y = 0.02 * rng.normal(size=len(B))
         floor = SMOOTHING * len(y) / m
-        lam = refine_module._gcv_smoothing(B.T @ B, -B.T @ y, D.T @ D, np.zeros(m), float(y @ y), float(len(y)),
-                                           floor=floor)
+        lam = _gcv_smoothing(B.T @ B, -B.T @ y, D.T @ D, np.zeros(m), float(y @ y), float(len(y)), floor=floor)
         c = np.linalg.solve(B.T @ B + lam * D.T @ D, B.T @ y)
         rows.append((np.log10(lam / floor), np.sqrt(np.mean((B @ c) ** 2))))
     return np.array(rows)
@@ -241,8 +239,6 @@ def test_gcv_counts_degrees_of_freedom_enough_to_keep_a_line_straight(monkeypatc
     # A line is what the penalty leaves alone: the heaviest weight is best.  Plain GCV (gamma 1) chose
     # a lighter one on 29 of these 100 seeds, 4 of them at most 10^3 floors (measured); GCV_GAMMA on 14
     # and 1, and its lines are closer to the truth on average.
-    from canalsurf.refine import GCV_GAMMA, GCV_GRID
-
     top = np.log10(GCV_GRID[-1])
     plain, inflated = (_smoothed_line(g, range(100), monkeypatch) for g in (1.0, GCV_GAMMA))
     assert (inflated[:, 0] >= top).mean() >= 0.8
