@@ -1625,9 +1625,65 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     else:
         if any(f is None or f is False for f in fits):
             raise ReconstructionError("the branches of the network could not be fitted — the input is not a tube")
+    if refine:
+        skel, fits = _fitted_about_placed_junctions(fits, skel, job, client, made)
     for fit, branch in zip(fits, skel.branches):
         fit.ends = branch.ends
     return skel, fits
+
+
+#: A junction placed from its branches' fits (:func:`_junction_point`) more than this share of the largest
+#: radius there from where the skeleton put it moves the points its branches leave out with it: they are
+#: fitted again.
+REFIT_JUNCTION_RADII = 0.25
+
+
+def _fitted_about_placed_junctions(fits: list, skel: Skeleton, job: dict, client, made: dict):
+    """The skeleton with its junctions placed from the fits, and the branches meeting at one that moved
+    (REFIT_JUNCTION_RADII) fitted again about it.
+
+    The thin set's junction can lie radii into one of its branches (the fork of an acute Y thins to a
+    point up the fork): each branch then left out the points round that point, one of them radii too
+    many, another the points where the tubes' surfaces merge.  Its branches' fitted ends place it where
+    their lines meet; points are left out round that place instead, and the branches' points are
+    assigned by their fits continued to it (their first estimates ran to the skeleton's junction, one
+    of them inside another tube).  A branch that cannot be fitted again keeps its fit.
+    """
+    largest = _largest_at_junctions(fits, skel)
+    junctions, moved = skel.junctions.copy(), set()
+    for j, ends in _ends_at_junctions([b.ends for b in skel.branches]).items():
+        placed = _junction_point(fits, ends, skel.junctions[j])
+        if np.linalg.norm(placed - skel.junctions[j]) > REFIT_JUNCTION_RADII * largest[j]:
+            junctions[j] = placed
+            moved.add(j)
+    if not moved:
+        return skel, fits
+    log.info("%d junctions placed from the fits moved: their branches are fitted again", len(moved))
+    skel = replace(skel, junctions=junctions)
+    todo = [i for i, b in enumerate(skel.branches) if moved & set(b.ends)]
+    estimates = _Estimates(skel, made)
+    for i in todo:
+        fit = replace(fits[i])
+        for e, j in enumerate(skel.branches[i].ends):
+            if j is not None:
+                _continue_to(fit, e, junctions[j])
+        estimates = estimates.replaced(i, {**estimates.guesses[i], "spine": fit.spine, "radius": fit.radius,
+                                           "segments": fit.segments})
+    job = {**job, "estimates": estimates}
+    for i, fit in zip(todo, _fit_all(todo, job, client)):
+        if not isinstance(fit, str):
+            fits[i] = fit
+    return skel, fits
+
+
+def _ends_at_junctions(ends: list) -> dict:
+    """``{junction: [(branch, end), ...]}`` from each branch's ``ends`` (a junction or ``None`` each)."""
+    meeting = {}
+    for i, pair in enumerate(ends):
+        for e, j in enumerate(pair):
+            if j is not None:
+                meeting.setdefault(j, []).append((i, e))
+    return meeting
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1709,11 +1765,7 @@ def _continue_to(fit: _BranchFit, end: int, target: np.ndarray) -> None:
 
 def _join_at_junctions(fits: list, skel: Skeleton):
     """Place each junction and continue the spines of the branches that meet there to it."""
-    meeting = {}
-    for i, fit in enumerate(fits):
-        for e, j in enumerate(fit.ends):
-            if j is not None:
-                meeting.setdefault(j, []).append((i, e))
+    meeting = _ends_at_junctions([f.ends for f in fits])
     points = np.empty((len(skel.junctions), 3))
     for j, ends in sorted(meeting.items()):
         points[j] = _junction_point(fits, ends, skel.junctions[j])
