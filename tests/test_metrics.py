@@ -113,3 +113,23 @@ def test_compare_against_the_truth():
     assert 0.03 <= c["spine_mean"] <= 0.05 + 1e-9
     assert c["radius"]["mean"] == pytest.approx(0.1, rel=1e-9)
     assert curve_length(moved.spine) == pytest.approx(curve_length(tube.spine), rel=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_branch_nearest_on_average_is_the_one_every_tree_queried_finds(seed):
+    """Trees skipped by their bounding box never hold the answer: the choice is that of querying every
+    tree, ties (an exact copy of a tree) included, which go to the first."""
+    from scipy.spatial import cKDTree
+
+    from canalsurf.metrics import _nearest_on_average
+
+    rng = np.random.default_rng(seed)
+    clouds = [rng.normal(rng.uniform(-5, 5, 3), rng.uniform(0.2, 3.0), (int(rng.integers(5, 300)), 3))
+              for _ in range(12)]
+    clouds.insert(int(rng.integers(1, 12)), clouds[int(rng.integers(0, 12))].copy())
+    trees = [cKDTree(c) for c in clouds]
+    boxes = np.array([(c.min(axis=0), c.max(axis=0)) for c in clouds])
+    for _ in range(20):
+        pts = rng.normal(rng.uniform(-5, 5, 3), rng.uniform(0.1, 4.0), (int(rng.integers(1, 200)), 3))
+        every = [tree.query(pts)[0].mean() for tree in trees]
+        assert _nearest_on_average(pts, trees, boxes) == int(np.argmin(every))

@@ -192,6 +192,22 @@ def _dense_branch(spine, radius, junctions, ends):
     return t, pts, radius(t), away, r_mean
 
 
+def _nearest_on_average(pts: np.ndarray, trees: list, boxes: np.ndarray) -> int:
+    """Index of the tree whose points lie nearest to ``pts`` on average (the first such on a tie).
+
+    A point lies at least as far from a tree's points as from their bounding box, so trees are tried
+    in order of that bound, and those whose bound exceeds the best mean so far are never queried.
+    """
+    gap = np.maximum(np.maximum(boxes[:, None, 0] - pts, pts - boxes[:, None, 1]), 0.0)
+    bound = np.linalg.norm(gap, axis=2).mean(axis=1)
+    mean_d = np.full(len(trees), np.inf)
+    for k in np.argsort(bound, kind="stable"):
+        if bound[k] > mean_d.min():
+            break
+        mean_d[k] = trees[k].query(pts)[0].mean()
+    return int(np.argmin(mean_d))
+
+
 def compare_network(network, truth) -> dict:
     """Accuracy of a reconstructed network against a :class:`~canalsurf.synth.SyntheticNetwork`.
 
@@ -216,18 +232,18 @@ def compare_network(network, truth) -> dict:
         t, pts, r, away, r_mean = _dense_branch(b.spine, b.radius, mj, b.ends)
         model.append((pts, r, away))
     trees = [cKDTree(pts) for pts, _, _ in model]
+    boxes = np.array([(pts.min(axis=0), pts.max(axis=0)) for pts, _, _ in model]).reshape(-1, 2, 3)
     branches, matched = [], []
     for tb in truth.branches:
         t, pts, r, away, r_mean = _dense_branch(tb.spine, tb.radius, tj, tb.ends)
-        mean_d = [float(tree.query(pts[away])[0].mean()) for tree in trees]
-        m = int(np.argmin(mean_d))
+        m = _nearest_on_average(pts[away], trees, boxes)
         matched.append(network.branches[m].id)
-        d_tm, near = trees[m].query(pts[away])
+        d_all, near_all = trees[m].query(pts)
+        d_tm, near = d_all[away], near_all[away]
         m_pts, m_r, m_away = model[m]
         # Model samples away from its junctions that lie opposite this branch's interior.
         d_mt, back = cKDTree(pts).query(m_pts[m_away])
         opposite = away[back]
-        d_all = trees[m].query(pts)[0]
         branches.append({
             "radius": r_mean,
             "spine_mean": max(d_tm.mean(), d_mt[opposite].mean() if opposite.any() else 0.0) / r_mean,
