@@ -12,11 +12,13 @@ Run from the repository root::
 
     python benchmarks/trust.py                       # 100 cases per family
     python benchmarks/trust.py --markdown docs/trust.md
+    python benchmarks/trust.py --family pole --first 1000   # other seeds of one family
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -28,7 +30,6 @@ from canalsurf.metrics import model_error
 from canalsurf.quality import CLAIMS
 from canalsurf.synth import CASE_FAMILIES, SyntheticNetwork, random_case
 
-COMMAND = "python benchmarks/trust.py --markdown docs/trust.md"
 #: Scans per family at most (a bay of the plant, 23 tubes, takes seconds; the other families a fraction).
 MAX_CASES = {"plant": 25}
 HEAD = ("| family | scans | refused | branches written | good / check / poor | outside its claim "
@@ -60,15 +61,18 @@ def check(family: str, seed: int) -> tuple[str | None, list, float]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cases", type=int, default=100, help="random scans per family (default 100)")
+    parser.add_argument("--first", type=int, default=0, help="seed of the first scan (default 0)")
+    parser.add_argument("--family", action="append", choices=CASE_FAMILIES,
+                        help="only this family (repeatable; default every family)")
     parser.add_argument("--markdown", type=Path, help="also write the table into this Markdown file")
     args = parser.parse_args(argv)
     lines = [HEAD, "|" + "---|" * (HEAD.count("|") - 1)]
     print("\n".join(lines), flush=True)
     wrong_total, examples = 0, []
-    for family in CASE_FAMILIES:
+    for family in args.family or CASE_FAMILIES:
         refused, errors, seconds = 0, [], []
         cases = min(args.cases, MAX_CASES.get(family, args.cases))
-        for seed in range(cases):
+        for seed in range(args.first, args.first + cases):
             why, found, s = check(family, seed)
             refused += why is not None
             seconds.append(s)
@@ -93,10 +97,12 @@ def main(argv=None) -> int:
     claims = ", ".join(f"`{q}` spine ≤ {100 * c['spine']:.0f} % r and radius ≤ {100 * c['radius']:.0f} %"
                        for q, c in CLAIMS.items())
     if args.markdown:
+        command = shlex.join(["python", "benchmarks/trust.py", *(sys.argv[1:] if argv is None else argv)])
         args.markdown.write_text(
-            "# Trust: models within their stated quality\n\nMade by `" + COMMAND + f"`: {args.cases} random "
-            "scans of each family of `canalsurf.synth.random_case` (seeds 0 to "
-            f"{args.cases - 1}; at most {MAX_CASES['plant']} of the plant, whose scans take seconds each), "
+            "# Trust: models within their stated quality\n\nMade by `" + command + f"`: {args.cases} random "
+            f"scans of each family of `canalsurf.synth.random_case` (seeds {args.first} to "
+            f"{args.first + args.cases - 1}; at most {MAX_CASES['plant']} of the plant, whose scans take seconds "
+            "each), "
             "reconstructed with no parameters. Every written branch is compared with "
             "the truth away from junctions (`canalsurf.metrics.model_error`: the mean distance of its spine "
             "from the true spine in true radii, and its mean radius error) and held to what its quality "
