@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.interpolate import BSpline, make_interp_spline
+from scipy.spatial import cKDTree
 
 from canalsurf import synth
-from canalsurf.metrics import closest_point_distance, compare, paper_distance, radius_error
+from canalsurf.metrics import _nearest_on_average, closest_point_distance, compare, paper_distance, radius_error
 from canalsurf.model import CanalModel
 from canalsurf.spine import constant_spline, curve_length
 
@@ -119,10 +120,6 @@ def test_compare_against_the_truth():
 def test_the_branch_nearest_on_average_is_the_one_every_tree_queried_finds(seed):
     """Trees skipped by their bounding box never hold the answer: the choice is that of querying every
     tree, ties (an exact copy of a tree) included, which go to the first."""
-    from scipy.spatial import cKDTree
-
-    from canalsurf.metrics import _nearest_on_average
-
     rng = np.random.default_rng(seed)
     clouds = [rng.normal(rng.uniform(-5, 5, 3), rng.uniform(0.2, 3.0), (int(rng.integers(5, 300)), 3))
               for _ in range(12)]
