@@ -439,7 +439,7 @@ def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     assert tangent[2] < 0.5 * np.linalg.norm(tangent)  # the hook the test is about
     job = {"points": points, "estimates": _Estimates(skel, {}),
            "fittable": _Fittable(points, np.ones(20_000, bool)),
-           "kappa": np.ones(20_000), "kind": "pipe", "refine": True, "noise": 0.005, "quantum": 0.0}
+           "kappa": np.ones(20_000), "kind": "pipe", "refine": True, "noise": 0.005, "quantum": 0.0, "loose": None}
     fit = _fit_one(0, job)
     assert not isinstance(fit, str), fit
     ends = fit.spine(np.array([0.0, 1.0]))

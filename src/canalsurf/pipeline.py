@@ -779,9 +779,10 @@ def _fit_points(scan: _Scan, passes: list, n_branches: int) -> tuple[np.ndarray,
     level = np.zeros(len(index), int)
     for j, run in enumerate(passes[1:], 1):
         level[np.isin(index, run.pool)] = j
-    curved, kappa = np.zeros(len(index), bool), np.zeros(len(index))
+    curved, kappa, sections = np.zeros(len(index), bool), np.zeros(len(index)), np.zeros(len(index), bool)
     for j, run in enumerate(passes):
         mine = level == j
+        sections[mine] = run.sr.stop_rule == "sections"
         mask = np.zeros(len(run.scan.pts), bool)
         mask[run.curved] = True
         if run.scan.pts is scan.all_pts and mine.all():
@@ -789,7 +790,7 @@ def _fit_points(scan: _Scan, passes: list, n_branches: int) -> tuple[np.ndarray,
             break
         nearest = cKDTree(run.scan.pts).query(points[mine], workers=-1)[1]
         curved[mine], kappa[mine] = mask[nearest], run.kappa[nearest]
-    return points, {"curved": curved, "kappa": kappa}
+    return points, {"curved": curved, "kappa": kappa, "loose": sections & ~curved}
 
 
 def _stand_in(g: dict, branch: SkeletonBranch, i: int) -> CanalModel:
@@ -891,7 +892,7 @@ def _assign(points: np.ndarray, estimates: _Estimates, fittable: _Fittable, i: i
     branches whose bands reach into it, are looked at, so that the cost does not grow with the size of
     the scene.
     """
-    guesses, junctions = estimates.guesses, estimates.skel.junctions
+    guesses = estimates.guesses
     _, mine, samples, band = estimates.model(i)
     boxes = np.array([estimates.model(j)[1] for j in range(len(guesses))])
     index = np.flatnonzero(np.all((boxes[:, 0] <= mine[1]) & (boxes[:, 1] >= mine[0]), axis=1))
@@ -902,11 +903,19 @@ def _assign(points: np.ndarray, estimates: _Estimates, fittable: _Fittable, i: i
     label, _ = classify_points(points[near], [estimates.model(j)[0] for j in index],
                                cut=[ASSIGN_RADII * guesses[j]["eq6"] for j in index], far=False)
     keep = label == i
-    own = [j for j in estimates.skel.branches[i].ends if j is not None]
-    if own and keep.any():
-        for hits in cKDTree(points[near]).query_ball_point(junctions[own], estimates.junction_reach[own]):
-            keep[hits] = False
+    keep[keep] = _off_junctions(points[near[keep]], estimates, i)
     return near[keep]
+
+
+def _off_junctions(points: np.ndarray, estimates: _Estimates, i: int) -> np.ndarray:
+    """Which ``points`` lie beyond the reach of branch ``i``'s junctions (there its surface belongs to
+    several tubes)."""
+    keep = np.ones(len(points), bool)
+    own = [j for j in estimates.skel.branches[i].ends if j is not None]
+    if own and len(points):
+        for hits in cKDTree(points).query_ball_point(estimates.skel.junctions[own], estimates.junction_reach[own]):
+            keep[hits] = False
+    return keep
 
 
 def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was: str | None = None) -> _BranchFit:
@@ -1122,6 +1131,43 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     return fit, idx
 
 
+#: A branch takes back the ``loose`` points on its surface in at most this many rounds (:func:`_regathered`).
+REGATHER_ROUNDS = 3
+
+
+def _regathered(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimates: _Estimates,
+                loose: _Fittable, kind: str) -> tuple[_BranchFit, np.ndarray]:
+    """Branch ``i``'s fit and the indices of its points (``idx``), with the ``loose`` points on its
+    surface taken back and the branch fitted again.
+
+    Cross-sections find a tube only where a point's neighbourhood is elongated like a piece of it
+    (:func:`~canalsurf.shrink.shrink_by_sections`): on a one-sided scan on a coarse grid that can be a
+    quarter of its points, and a fit to those alone is off by a third of its radius.  Each round takes
+    the loose points whose footpoints lie inside the branch, away from its junctions, and whose
+    residuals lie within the outlier cut of the fit's own points -- not of all, which the ground under
+    the tube would widen until it took the ground in -- and fits the branch again, until the points
+    taken are the same.  Clutter beside the tube stays out, as it stayed out of the first fit.
+    """
+    taken = np.zeros(0, int)
+    for _ in range(REGATHER_ROUNDS):
+        r = fit.radius(np.linspace(0.0, 1.0, 64))
+        cut = outlier_cut(fit.residual, float(np.mean(r)))
+        pts = fit.spine(np.linspace(0.0, 1.0, 64 * (len(fit.spine.t) - 2 * fit.spine.k)))
+        reach = float(r.max()) + cut + float(np.linalg.norm(np.diff(pts, axis=0), axis=1).max())
+        near = loose.in_box(points, np.array([pts.min(axis=0) - reach, pts.max(axis=0) + reach]))
+        t, res = footpoints(points[near], fit.spine, fit.radius, closed=fit.closed)
+        on = np.abs(res - np.median(fit.residual)) <= cut
+        if not fit.closed:
+            on &= (t > 0.0) & (t < 1.0)
+        on[on] = _off_junctions(points[near[on]], estimates, i)
+        if np.array_equal(near[on], taken):
+            break
+        taken = near[on]
+        guess = {**estimates.guesses[i], "spine": fit.spine, "radius": fit.radius}
+        fit = _fit_branch(points[np.union1d(idx, taken)], guess, kind=kind, refine=True, was=fit.kind)
+    return fit, np.union1d(idx, taken)
+
+
 #: Spine samples (by arc length) of the tests on a fit's ends below.
 END_SAMPLES = 600
 #: Past a gap in its points longer than POOR_GAP_RADII radii, the part of a branch towards an open end
@@ -1260,13 +1306,22 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
                 if len(idx) < C.POINTS_PER_SEGMENT:
                     return f"only {len(idx)} points are left once the strays at its ends are cut"
                 fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=True)
+            if job["loose"] is not None and _judged(fit, idx, job)[0]:
+                # Judged on the points whose cross-section was found before it takes back the others: a
+                # strip of ground, no tube, would take in more of the ground and could pass for one.
+                fit, idx = _regathered(points, fit, idx, i, estimates, job["loose"], job["kind"])
     except ReconstructionError as exc:
         if len(estimates.guesses) == 1:
             raise
         return str(exc).split(" — ")[0]
-    fit.kappa = job["kappa"][idx]
-    ok, why = _is_tube(_quality(fit), job["noise"], job["quantum"])
+    ok, why = _judged(fit, idx, job)
     return fit if ok else why
+
+
+def _judged(fit: _BranchFit, idx: np.ndarray, job: dict) -> tuple[bool, str]:
+    """Whether a fit to the points ``idx`` is a tube, and if not why (:func:`_is_tube`)."""
+    fit.kappa = job["kappa"][idx]
+    return _is_tube(_quality(fit), job["noise"], job["quantum"])
 
 
 #: Branches fitted at once before the fits are spread over the machine's cores, and the scan's points
@@ -1556,22 +1611,26 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, made: dict,
 
 
 def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool, noise: float,
-                 quantum: float, curved: np.ndarray, kappa: np.ndarray, client=None):
+                 quantum: float, curved: np.ndarray, kappa: np.ndarray, loose: np.ndarray | None = None,
+                 client=None):
     """Fit every branch; drop those that are no tube and join the branches they separated.
 
     ``noise`` is the scan's own noise (:func:`_noise`), against which a branch's misfit is judged,
     ``quantum`` the part of it its coordinates' grid alone adds (:func:`quantisation_noise`);
     ``curved`` marks the points that may be fitted (:func:`_assign`), ``kappa`` is each point's larger
-    principal curvature (a tube's points curve with its radius); ``client``, Dask's, fits there.
+    principal curvature (a tube's points curve with its radius); ``loose`` marks the points of a pass
+    that fell back to cross-sections whose own was not found, which a branch takes back where they lie
+    on its surface (:func:`_regathered`); ``client``, Dask's, fits there.
     """
     fits = [None] * len(skel.branches)
     fittable = _Fittable(points, curved)
+    loose = _Fittable(points, loose) if loose is not None and loose.any() else None
     cut = set()  # branches cut to their part outside other tubes
     made = {}  # the branches' first estimates (see _Estimates)
     for round_ in range(MAX_FIT_ROUNDS):
         estimates = _Estimates(skel, made)
         job = {"points": points, "estimates": estimates, "fittable": fittable, "kappa": kappa, "kind": kind,
-               "refine": refine, "noise": noise, "quantum": quantum}
+               "refine": refine, "noise": noise, "quantum": quantum, "loose": loose}
         todo = [i for i, f in enumerate(fits) if f is None]
         reason = ""
         for i, fit in zip(todo, _fit_all(todo, job, client)):
