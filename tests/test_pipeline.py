@@ -322,6 +322,32 @@ def test_a_pipe_fit_whose_points_keep_their_distance_from_its_spine_has_a_steady
     assert _steady_radius(fit, 6, closed=False) is steady
 
 
+def test_a_pipe_and_a_canal_are_not_compared_on_clutter_beside_the_pipe_or_past_its_end():
+    """A pipe fit of radius 1 along x in [0, 20] (4,000 points, 1 % noise) with, among its points, a strip
+    of ground 0.9 outside it over a tenth of its length (a fifth of those stations' points), a cap of
+    points half a radius past its end, a few points three radii past it, and a narrow stretch 0.4 inside
+    it (a reducer's, all of its stations' points).  Only the ground and the cap are left out."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _unscored
+    from canalsurf.spine import pspline_fit
+
+    rng = np.random.default_rng(0)
+    u = np.linspace(0.0, 1.0, 50)
+    spine = pspline_fit(u, np.c_[20 * u, np.zeros((50, 2))], n_segments=4)
+    t = np.r_[rng.uniform(0.0, 0.6, 2400), rng.uniform(0.3, 0.4, 100), np.ones(60), np.ones(10),
+              rng.uniform(0.6, 0.9, 1200)]
+    residual = np.r_[np.zeros(2400), np.full(100, 0.9), np.zeros(70), np.full(1200, -0.4)]
+    residual += rng.normal(0.0, 0.01, len(t))
+    points = spine(t) + np.c_[np.zeros(len(t)), 1.0 + residual, np.zeros(len(t))]
+    points[2500:2560, 0] += 0.5
+    points[2560:2570, 0] += 3.0
+    fit = SimpleNamespace(t=t, residual=residual, spine=spine)
+    out = _unscored(points, fit, False, 1.0)
+    assert out[2400:2560].all()
+    assert not out[:2400].any() and not out[2560:].any()
+
+
 @pytest.mark.parametrize("taper", [0.0, 0.5])
 def test_a_grown_pipe_is_fitted_again_as_a_pipe_alone_unless_its_radius_changes(monkeypatch, taper):
     """A branch fitted as a pipe and grown (its estimate now that fit) is fitted again as a pipe alone

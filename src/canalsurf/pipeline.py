@@ -950,12 +950,14 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was
             fits["pipe"] = refine_fit(points, start, constant_spline(eq6), closed=closed,
                                       spine_segments=nseg, radius_segments=None, reach=eq6)
         if kind == "auto":
-            # Both fits scored on all points with the same outlier cut: a fit that went wrong
-            # must not look good by calling most points outliers.
+            # Both fits scored with the same outlier cut, so that a canal fit that went wrong does not
+            # look good by calling most points outliers; and without the clutter beside a pipe or past
+            # its ends (:func:`_unscored`), which a canal would otherwise win by taking in.
             cut = outlier_cut(fits["canal"].residual, eq6)
-            rss = {name: float(np.minimum(f.residual**2, cut**2).sum()) for name, f in fits.items()}
+            mine = ~_unscored(points, fits["pipe"], closed, eq6)
+            rss = {name: float(np.minimum(f.residual[mine]**2, cut**2).sum()) for name, f in fits.items()}
             samples = fits["canal"].radius(np.linspace(0, 1, 200))
-            kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], len(points), rseg + 2, samples) else "pipe"
+            kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], int(mine.sum()), rseg + 2, samples) else "pipe"
             if kind == "canal" and _gapped(fits["canal"], float(np.mean(samples)), closed):
                 kind = "pipe"
         spine, radius, t = fits[kind].spine, fits[kind].radius, fits[kind].t
@@ -972,6 +974,29 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was
         radius_fn = constant_spline(eq6)
     t, residual = footpoints(points, spine, radius_fn, closed=closed)
     return _BranchFit(kind, spine, radius_fn, closed, (None, None), eq6, (nseg, rseg), residual, t, points)
+
+
+def _unscored(points: np.ndarray, pipe: RefineResult, closed: bool, eq6: float) -> np.ndarray:
+    """Which ``points`` a ``pipe`` fit and a canal fit are not compared on: the pipe's strays that lie
+    beside its inliers -- at stations along it (a radius, ``eq6``, long) where most points are
+    inliers -- and the points past an open end within a radius of it.
+
+    A canal whose radius swells to take in clutter beside a pipe (the ground a radius under a one-sided
+    pole), or closes in on a capped end, makes points its inliers that the pipe leaves out while its own
+    stay on the tube: a gain that is no sign of a radius changing along it.  Where the radius changes
+    (a reducer), the points a pipe cannot reach make up their stations, and run on past its end.
+    """
+    stray = is_stray(pipe.residual, eq6)
+    station = (pipe.t * curve_length(pipe.spine) / eq6).astype(int)
+    share = np.bincount(station, weights=stray) / np.maximum(np.bincount(station), 1)
+    out = stray & (share[station] < 0.5)
+    if not closed:
+        for end, sign in ((0.0, -1.0), (1.0, 1.0)):
+            at = np.flatnonzero(pipe.t == end)
+            tangent = pipe.spine.derivative()(end)
+            past = (points[at] - pipe.spine(end)) @ (sign * tangent / np.linalg.norm(tangent))
+            out[at[past <= eq6]] = True
+    return out
 
 
 #: A pipe fit's radius is steady where a radius function fitted to its points' distances from its spine
