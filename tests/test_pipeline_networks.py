@@ -447,6 +447,42 @@ def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     assert np.abs(fit.spine(np.linspace(0.0, 1.0, 50))[:, :2]).max() < 0.02
 
 
+def test_a_fit_whose_growth_fails_keeps_the_tube_it_grew_from(monkeypatch):
+    """A tube of radius 1 from z = 0 to 8 whose thin set stops at z = 5: its open end grows.  Where a
+    round of growth cannot be fitted (here every fit to more points than the first; on a tree scan, a
+    stem's end grown into the fork, whose fit shrank to a point), the branch keeps the fit it had: the
+    failed round made it no less a tube.  It was dropped, and the stem's foot with it."""
+    import canalsurf.pipeline as pipeline
+    from canalsurf.errors import ReconstructionError
+    from canalsurf.pipeline import _Estimates, _Fittable, _first_guess, _fit_one
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    z = np.linspace(0.0, 5.0, 11)
+    branch = SkeletonBranch(np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), np.full(11, 4.0),
+                            np.ones(11), (None, None))
+    rng = np.random.default_rng(0)
+    angle, height = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 8.0, 20_000)
+    points = np.column_stack([np.cos(angle), np.sin(angle), height]) + rng.normal(0.0, 0.005, (20_000, 3))
+    fit_branch, sizes = pipeline._fit_branch, []
+
+    def failing_to_grow(pts, guess, **kwargs):
+        sizes.append(len(pts))
+        if len(pts) > sizes[0]:
+            raise ReconstructionError("the fitted spine shrank to a point: the points do not follow a curve")
+        return fit_branch(pts, guess, **kwargs)
+
+    monkeypatch.setattr(pipeline, "_fit_branch", failing_to_grow)
+    job = {"points": points, "estimates": _Estimates(Skeleton([branch], np.empty((0, 3)), 0.5), {}),
+           "fittable": _Fittable(points, np.ones(20_000, bool)),
+           "kappa": np.ones(20_000), "kind": "pipe", "refine": True, "noise": 0.005, "quantum": 0.0, "loose": None}
+    fit = _fit_one(0, job)
+    assert len(sizes) > 1  # it tried to grow
+    assert not isinstance(fit, str), fit
+    assert len(fit.points) == sizes[0]
+    ends = np.sort(fit.spine(np.array([0.0, 1.0]))[:, 2])
+    assert abs(ends[0]) < 0.1 and 5.0 < ends[1] < 8.0, ends
+
+
 def test_a_junction_the_thin_set_made_between_two_tubes_side_by_side_is_opened_and_each_tube_is_one_branch():
     """Two pipes side by side (radii 0.8 and 0.5, their surfaces 0.75 apart) whose thin sets met for a stretch:
     the skeleton joins them at a junction on the thinner one's axis, from which two branches cross over to

@@ -1138,7 +1138,8 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     the edge of its points: the points are assigned again about the fit (continued ASSIGN_END_RADII past
     its ends, like the first estimate) and the branch fitted again, until no end grows by more than
     ``GROW_RADII`` or ``MAX_GROW_ROUNDS``.  The refinement's own end placement stops it at a gap in the
-    points, as before."""
+    points, as before.  A round whose fit fails keeps the fit before it: an end grown into clutter (a
+    tree's stem into the flare under its limbs) loses what it grew, not the tube it grew from."""
     free = [e for e in (0, 1) if estimates.skel.branches[i].ends[e] is None and not estimates.guesses[i]["closed"]]
     for _ in range(MAX_GROW_ROUNDS):
         g = estimates.guesses[i]
@@ -1151,8 +1152,12 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
         length, grown = curve_length(g["spine"]), curve_length(fit.spine)
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
         estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
-        idx = _assign(points, estimates, fittable, i)
-        fit = _fit_branch(points[idx], estimates.guesses[i], kind=kind, refine=True, was=fit.kind)
+        grown_idx = _assign(points, estimates, fittable, i)
+        try:
+            fit = _fit_branch(points[grown_idx], estimates.guesses[i], kind=kind, refine=True, was=fit.kind)
+        except ReconstructionError:
+            break
+        idx = grown_idx
     return fit, idx
 
 
