@@ -747,7 +747,8 @@ def _first_guess(branch: SkeletonBranch) -> dict:
     steps = np.linalg.norm(np.diff(branch.points, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(steps)])
     length = s[-1] + (np.linalg.norm(branch.points[-1] - branch.points[0]) if branch.closed else 0.0)
-    w = branch.weights
+    # A link the skeleton split off at a tee can hold no thin points; its vertices stand in for them.
+    w = branch.weights if branch.weights.sum() > 0 else np.ones(len(branch.points))
     n_thin = int(w.sum())
     r_b = float(np.average(branch.radius, weights=w))  # Eq. (6) over the branch's points
     r_v = branch.radius if branch.closed else _steady(branch.radius)
@@ -936,9 +937,17 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was
                               reach=eq6)
             if _steady_radius(pipe, rseg, closed):
                 fits["pipe"], kind = pipe, "pipe"
+        # Left to choose, a branch one of whose fits fails is the other kind, not no tube: a canal's
+        # free radius can let the fit's ends close in until it shrinks to a point where a pipe's
+        # cannot (a tree's limb, seen from one side).
         if kind in ("auto", "canal"):
-            fits["canal"] = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
-                                       radius_segments=rseg, reach=eq6)
+            try:
+                fits["canal"] = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg,
+                                           radius_segments=rseg, reach=eq6)
+            except ReconstructionError:
+                if kind == "canal":
+                    raise
+                kind = "pipe"
         if kind in ("auto", "pipe") and "pipe" not in fits:
             # The canal fit's spine is the better start, unless that fit ran off (its free radius
             # function lets a bad step grow) or folded (its end slid back along the tube, dragged by a
@@ -947,8 +956,13 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was
             sound = (canal is not None and _near_radius(canal.radius, eq6)
                      and not fold(canal.spine, canal.radius, closed))
             start = canal.spine if sound else spine
-            fits["pipe"] = refine_fit(points, start, constant_spline(eq6), closed=closed,
-                                      spine_segments=nseg, radius_segments=None, reach=eq6)
+            try:
+                fits["pipe"] = refine_fit(points, start, constant_spline(eq6), closed=closed,
+                                          spine_segments=nseg, radius_segments=None, reach=eq6)
+            except ReconstructionError:
+                if kind == "pipe":
+                    raise
+                kind = "canal"
         if kind == "auto":
             # Both fits scored with the same outlier cut, so that a canal fit that went wrong does not
             # look good by calling most points outliers; and without the clutter beside a pipe or past
