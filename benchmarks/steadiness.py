@@ -2,9 +2,10 @@
 millimetre, reconstructed again and again.
 
 A scan has no truth to score against, but a model a user can trust does not come and go with the
-order of the points or with noise far below the scan's own: each run shuffles the points and adds
-seeded Gaussian noise of ``--jitter`` (in the file's units; default 1 mm for a scan in metres) to
-every coordinate, then runs :func:`canalsurf.reconstruct` with no parameters.  A run that is refused
+order of the points, with noise far below the scan's own or with the frame it is given in: each run
+turns the scan by ``--turn`` degrees about the vertical (z) axis through its centre, shuffles the
+points and adds seeded Gaussian noise of ``--jitter`` (in the file's units; default 1 mm for a scan in
+metres) to every coordinate, then runs :func:`canalsurf.reconstruct` with no parameters.  A run that is refused
 (:class:`canalsurf.errors.CanalsurfError`) counts as such; any other exception is a bug and is listed
 with its type.  Per run: the share of the points on no tube, the branches (pipes, canals) and the
 longest branch.
@@ -13,6 +14,7 @@ Run from the repository root on a file of your own, e.g.::
 
     python benchmarks/steadiness.py scan.xyz                 # 6 runs
     python benchmarks/steadiness.py scan.xyz --runs 10 --jitter 0.002
+    python benchmarks/steadiness.py scan.xyz --runs 1 --jitter 0 --turn 10   # the frame alone
 """
 
 from __future__ import annotations
@@ -53,9 +55,17 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=6, help="runs, seeds 0 to RUNS - 1 (default 6)")
     parser.add_argument("--jitter", type=float, default=0.001,
                         help="standard deviation of the noise added to each coordinate (default 0.001)")
+    parser.add_argument("--turn", type=float, default=0.0,
+                        help="degrees the scan is turned about the vertical axis first (default 0)")
     args = parser.parse_args()
     points, _ = canalsurf.read_points(args.file)
-    print(f"{args.file}: {len(points):,} points, each run shuffled and moved by N(0, {args.jitter:g}) per coordinate\n")
+    if args.turn:  # else the points as read, to the bit
+        a = np.radians(args.turn)
+        turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        centre = points.mean(axis=0)
+        points = (points - centre) @ turn.T + centre
+    print(f"{args.file}: {len(points):,} points, turned by {args.turn:g} degrees about z; each run shuffled and "
+          f"moved by N(0, {args.jitter:g}) per coordinate\n")
     print("| seed | % of the points on no tube | branches | longest spine | longest branch | s |")
     print("|---|---|---|---|---|---|")
     for seed in range(args.runs):
