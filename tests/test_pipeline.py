@@ -230,16 +230,23 @@ def _pipe_points(radius, x0, x1, n, rng, off=0.0):
     return np.column_stack([x, off + r * np.cos(angle), r * np.sin(angle)])
 
 
+def _guess_along_x(radius=1.2):
+    """A branch's first estimate: a straight spine along x in [0, 24] (6 knot intervals), a constant
+    ``radius``."""
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    u = np.linspace(0.0, 1.0, 50)
+    return {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(radius),
+            "eq6": radius, "segments": (6, 6), "closed": False}
+
+
 def _gap_fit(beyond, ends):
     """A pipe of radius 1.2 fitted to 5,000 points over x in [0, 12] and the points ``beyond`` (past a gap
     at x = 18), from a first estimate along x in [0, 24]."""
     from canalsurf.pipeline import _fit_branch
-    from canalsurf.spine import constant_spline, pspline_fit
 
     points = np.concatenate([_pipe_points(1.2, 0, 12, 5000, np.random.default_rng(0)), beyond])
-    u = np.linspace(0.0, 1.0, 50)
-    guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(1.2),
-             "eq6": 1.2, "segments": (6, 6), "closed": False}
+    guess = _guess_along_x()
     return _fit_branch(points, guess, kind="pipe", refine=True), guess
 
 
@@ -290,9 +297,7 @@ def test_a_canal_fit_that_went_wrong_does_not_take_the_pipe_fit_with_it(monkeypa
 
     monkeypatch.setattr(pipeline, "refine_fit", wrong_canal)
     points = _pipe_points(1.2, 0, 24, 5000, np.random.default_rng(0))
-    u = np.linspace(0.0, 1.0, 50)
-    guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(1.2),
-             "eq6": 1.2, "segments": (6, 6), "closed": False}
+    guess = _guess_along_x()
     fit = pipeline._fit_branch(points, guess, kind="auto", refine=True)
     assert fit.kind == "pipe"
     axis = fit.spine(np.linspace(0, 1, 100))
@@ -369,7 +374,6 @@ def test_a_branch_whose_canal_or_pipe_fit_fails_is_the_other_kind(monkeypatch, f
     stands."""
     import canalsurf.pipeline as pipeline
     from canalsurf.errors import ReconstructionError
-    from canalsurf.spine import constant_spline, pspline_fit
 
     refine = pipeline.refine_fit
 
@@ -380,14 +384,12 @@ def test_a_branch_whose_canal_or_pipe_fit_fails_is_the_other_kind(monkeypatch, f
 
     monkeypatch.setattr(pipeline, "refine_fit", fails)
     points = _pipe_points(1.2, 0, 24, 5000, np.random.default_rng(0))
-    u = np.linspace(0.0, 1.0, 50)
-    guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(1.2),
-             "eq6": 1.2, "segments": (6, 6), "closed": False}
+    guess = _guess_along_x()
     fit = pipeline._fit_branch(points, guess, kind="auto", refine=True)
     assert fit.kind == ("pipe" if failing == "canal" else "canal")
     axis = fit.spine(np.linspace(0, 1, 100))
     assert np.abs(axis[:, 1:]).max() < 0.01 * 1.2
-    assert abs(float(np.mean(fit.radius(u))) - 1.2) < 0.01 * 1.2
+    assert abs(float(np.mean(fit.radius(np.linspace(0, 1, 50)))) - 1.2) < 0.01 * 1.2
     with pytest.raises(ReconstructionError, match="shrank to a point"):
         pipeline._fit_branch(points, guess, kind=failing, refine=True)
 
@@ -399,7 +401,6 @@ def test_a_grown_pipe_is_fitted_again_as_a_pipe_alone_unless_its_radius_changes(
     -- a cone whose radius grows by ``taper`` of it over that length -- the canal fit is made as on a
     first fit, and kept."""
     import canalsurf.pipeline as pipeline
-    from canalsurf.spine import constant_spline, pspline_fit
 
     refine, made = pipeline.refine_fit, []
 
@@ -410,10 +411,8 @@ def test_a_grown_pipe_is_fitted_again_as_a_pipe_alone_unless_its_radius_changes(
     monkeypatch.setattr(pipeline, "refine_fit", counted)
     points = _pipe_points(1.0, 0, 24, 5000, np.random.default_rng(0))
     points[:, 1:] *= (1.2 * (1 + taper * points[:, 0] / 24))[:, None]
-    u = np.linspace(0.0, 1.0, 50)
     r = 1.2 * (1 + taper / 2)
-    guess = {"spine": pspline_fit(u, np.c_[24 * u, np.zeros((50, 2))], n_segments=6), "radius": constant_spline(r),
-             "eq6": r, "segments": (6, 6), "closed": False}
+    guess = _guess_along_x(r)
     fit = pipeline._fit_branch(points, guess, kind="auto", refine=True, was="pipe")
     assert fit.kind == ("canal" if taper else "pipe")
     assert made == (["pipe", "canal", "pipe"] if taper else ["pipe"])
