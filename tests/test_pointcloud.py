@@ -8,7 +8,10 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from canalsurf.errors import InputError
-from canalsurf.pointcloud import SPACING_SAMPLE, crop, point_spacing, voxel_downsample
+from scipy.spatial.transform import Rotation
+
+from canalsurf import synth
+from canalsurf.pointcloud import SPACING_SAMPLE, crop, point_spacing, quantisation_noise, voxel_downsample
 
 SEED = 20240612
 
@@ -192,3 +195,62 @@ def test_spacing_on_a_sample_is_seeded_and_close():
 def test_spacing_of_too_few_distinct_points_is_nan():
     assert np.isnan(point_spacing(np.zeros((1, 3))))
     assert np.isnan(point_spacing(np.zeros((5, 3))))  # one place, five times
+
+
+# --- quantisation_noise ----------------------------------------------------------------------------
+
+#: The stored tube's grid: x in steps of 2 cm, y of 1 cm, z not rounded; the noise that adds along a
+#: normal of random direction (quantisation_noise's docstring).
+STEPS = (0.02, 0.01)
+GRID_NOISE = float(np.sqrt(sum(q * q for q in STEPS) / 36.0))
+
+
+def _tube(noise: float = 0.001, seed: int = SEED) -> np.ndarray:
+    """6,000 points on a slanted tube of radius 0.1 m and length 2 m, with Gaussian ``noise``."""
+    rng = np.random.default_rng(seed)
+    angle, along = rng.uniform(0, 2 * np.pi, 6000), rng.uniform(0, 2, 6000)
+    radius = 0.1 + rng.normal(0, noise, 6000)
+    tube = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), along])
+    return tube @ Rotation.from_euler("xy", [20, 35], degrees=True).as_matrix().T + [3.0, -1.0, 0.5]
+
+
+def _stored(points: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.round(points[:, 0] / STEPS[0]) * STEPS[0],
+                            np.round(points[:, 1] / STEPS[1]) * STEPS[1], points[:, 2]])
+
+
+def _turned(points: np.ndarray, seed: int) -> np.ndarray:
+    return points @ Rotation.random(random_state=seed).as_matrix().T
+
+
+def test_quantisation_noise_of_a_grid_along_the_axes():
+    assert quantisation_noise(_stored(_tube())) == pytest.approx(GRID_NOISE, rel=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_quantisation_noise_finds_a_turned_grid(seed):
+    # A scan rounded as stored, then registered: its grid no longer lies along x, y and z.
+    assert quantisation_noise(_turned(_stored(_tube()), seed)) == pytest.approx(GRID_NOISE, rel=1e-6)
+
+
+def test_quantisation_noise_finds_a_turned_grid_under_light_noise():
+    stored = _turned(_stored(_tube()), 1)
+    moved = stored + np.random.default_rng(SEED).normal(0, STEPS[1] / 20, stored.shape)
+    assert quantisation_noise(moved) == pytest.approx(GRID_NOISE, rel=0.02)
+
+
+@pytest.mark.parametrize("points", [
+    _tube(),                                                                       # never rounded
+    _turned(_stored(_tube()), 2) + np.random.default_rng(SEED).normal(0, STEPS[0] / 3, (6000, 3)),  # drowned
+], ids=["not rounded", "noise of a third of the step"])
+def test_quantisation_noise_of_points_on_no_grid_is_zero(points):
+    assert quantisation_noise(points) == 0.0
+
+
+def test_quantisation_noise_takes_a_scanners_rows_for_no_grid():
+    # Rows and columns of a raster scan are as regular as a grid between neighbours, not across the
+    # scan; rounded to 5 cm as stored and then turned, the same scan is on a grid.
+    assert quantisation_noise(synth.scan("fig9-pipe", rng=0).points) == 0.0
+    stored = synth.scan("fig9-pipe", quantum=0.05, rng=0).points
+    assert quantisation_noise(_turned(stored, 3)) == pytest.approx(quantisation_noise(stored), rel=1e-6)
+    assert quantisation_noise(stored) == pytest.approx(0.05 / np.sqrt(12), rel=1e-9)

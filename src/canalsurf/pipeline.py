@@ -28,6 +28,7 @@ from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
 from .normals import estimate_normals, on_planes, point_inward, scatter_matrices, surface_noise
+from .pointcloud import quantisation_noise
 from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
@@ -596,15 +597,6 @@ def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0, widest: fl
     return scan, nrm, r0, area_per_point, curved, kappa
 
 
-#: Coordinates of this many points (a seeded sample) are searched for a common grid step.
-QUANTUM_SAMPLE = 5000
-#: Steps between sorted distinct coordinates below this share of their range are rounding of
-#: arithmetic (the normalisation), not a grid.
-QUANTUM_RESOLUTION = 1e-9
-#: Every coordinate must lie within this share of a step of the grid for the axis to count as gridded.
-QUANTUM_TOLERANCE = 1e-3
-
-
 def _scan_noise(points: np.ndarray, nbr: np.ndarray) -> float:
     """The median RMS offset of each point's neighbours from their regression plane: how far off a
     plane its points may lie (:func:`canalsurf.normals.on_planes`).  On a pass's subset it also takes in
@@ -631,29 +623,6 @@ def _noise(scan: _Scan, passes: list, quantum: float) -> float:
     if scan.draw is not None and len(points) > NOISE_POINTS:
         points = points[np.sort(scan.draw[:NOISE_POINTS])]
     return max(surface_noise(points, seeds), quantum)
-
-
-def quantisation_noise(points: np.ndarray, *, sample: int = QUANTUM_SAMPLE) -> float:
-    """The noise that rounding coordinates to a grid adds along a surface normal (0 if not rounded).
-
-    LAS and many scanners' files store coordinates as whole multiples of a step q per axis (1 mm,
-    1 cm, ...).  The rounding error is uniform on [-q/2, q/2] along each axis, variance q^2 / 12;
-    along a normal of random direction that averages to sum(q_a^2) / 36.  A quantised floor or wall
-    has no scatter at all about its plane, so this is the least noise a fit can be held to.
-    """
-    pts = points[np.random.default_rng(0).permutation(len(points))[:sample]]
-    variance = 0.0
-    for values in pts.T:
-        levels = np.unique(values)
-        steps = np.diff(levels)
-        steps = steps[steps > QUANTUM_RESOLUTION * np.ptp(values)]
-        if not len(steps):
-            continue
-        q = steps.min()
-        offsets = (levels - levels[0]) / q
-        if np.all(np.abs(offsets - np.round(offsets)) < QUANTUM_TOLERANCE):
-            variance += q * q / 36.0
-    return float(np.sqrt(variance))
 
 
 def _parameters(r0, area_per_point, scale, *, R, delta, mu, tau, H, algo, stop) -> dict:
@@ -1112,7 +1081,7 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
 
     A tube whose points scatter more than ``MAX_RELATIVE_RESIDUAL`` of its radius, or lie off round by
     more than ``MAX_OUT_OF_ROUND``, passes when the grid of the coordinates (``quantum``,
-    :func:`quantisation_noise`) explains it: a thin pole stored in steps of a third of its radius can be
+    :func:`canalsurf.pointcloud.quantisation_noise`) explains it: a thin pole stored in steps of a third of its radius can be
     no closer to its surface than that, and along a pole parallel to an axis the rounding is the same in
     every cross-section, so it stays by sector.
     """
@@ -1660,7 +1629,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     """Fit every branch; drop those that are no tube and join the branches they separated.
 
     ``noise`` is the scan's own noise (:func:`_noise`), against which a branch's misfit is judged,
-    ``quantum`` the part of it its coordinates' grid alone adds (:func:`quantisation_noise`);
+    ``quantum`` the part of it its coordinates' grid alone adds (:func:`canalsurf.pointcloud.quantisation_noise`);
     ``curved`` marks the points that may be fitted (:func:`_assign`), ``kappa`` is each point's larger
     principal curvature (a tube's points curve with its radius); ``loose`` marks the points of a pass
     that fell back to cross-sections whose own was not found, which a branch takes back where they lie
