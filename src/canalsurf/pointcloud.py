@@ -292,8 +292,10 @@ def quantisation_noise(points, *, sample: int = QUANTUM_SAMPLE, rng=0) -> float:
     """
     pts, _ = _as_cloud(points, None)
     pts = pts[np.random.default_rng(rng).permutation(len(pts))[:max(sample, TURNED_POINTS)]]
-    variance = max(sum(q * q for q in _axis_steps(pts[:sample])), sum(q * q for q in _turned_steps(pts)))
-    return float(np.sqrt(variance / 36.0))
+    along = sum(q * q / 36.0 for q in _axis_steps(pts[:sample]))
+    turned = sum(q * q / 36.0 for q in _turned_steps(pts))
+    # A grid along the axes is found both ways; its exact steps then stand.
+    return float(np.sqrt(along if turned < along * (1 + 1e-6) else turned))
 
 
 def _axis_steps(points: np.ndarray) -> list[float]:
