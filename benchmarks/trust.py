@@ -13,6 +13,10 @@ Run from the repository root::
     python benchmarks/trust.py                       # 100 cases per family
     python benchmarks/trust.py --markdown docs/trust.md
     python benchmarks/trust.py --family pole --first 1000   # other seeds of one family
+    python benchmarks/trust.py --family pole --turn 30      # registered into another frame
+
+``--turn`` turns every scan and its truth about the vertical axis first: a scan registered or levelled
+into another frame after its coordinates were rounded, whose grid then lies along no axis of the file.
 """
 
 from __future__ import annotations
@@ -21,9 +25,12 @@ import argparse
 import shlex
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from scipy.interpolate import BSpline
+from scipy.spatial.transform import Rotation
 
 import canalsurf
 from canalsurf.metrics import model_error
@@ -42,9 +49,22 @@ def outside_claim(error: dict) -> bool:
     return bool(error["spine_mean"] > claim["spine"] or error["radius_mean"] > claim["radius"])
 
 
-def check(family: str, seed: int) -> tuple[str | None, list, float]:
-    """Reconstruct one random case: (refusal message or None, per-branch errors, seconds)."""
-    case = random_case(family, seed)
+def turned(case, degrees: float):
+    """A random case, its points and its truth (spines, junctions), turned about the vertical axis."""
+    if not degrees:
+        return case
+    turn = Rotation.from_euler("z", degrees, degrees=True).as_matrix().T
+    moved = {"points": case.points @ turn, "normals": case.normals @ turn}
+    if isinstance(case, SyntheticNetwork):
+        branches = tuple(replace(b, spine=BSpline(b.spine.t, b.spine.c @ turn, b.spine.k)) for b in case.branches)
+        return replace(case, branches=branches, junctions=case.junctions @ turn, **moved)
+    return replace(case, spine=BSpline(case.spine.t, case.spine.c @ turn, case.spine.k), **moved)
+
+
+def check(family: str, seed: int, turn: float = 0.0) -> tuple[str | None, list, float]:
+    """Reconstruct one random case, turned by ``turn`` degrees: (refusal message or None, per-branch
+    errors, seconds)."""
+    case = turned(random_case(family, seed), turn)
     start = time.perf_counter()
     try:
         network = canalsurf.reconstruct(case.points)
@@ -64,6 +84,8 @@ def main(argv=None) -> int:
     parser.add_argument("--first", type=int, default=0, help="seed of the first scan (default 0)")
     parser.add_argument("--family", action="append", choices=CASE_FAMILIES,
                         help="only this family (repeatable; default every family)")
+    parser.add_argument("--turn", type=float, default=0.0, metavar="DEG",
+                        help="turn every scan and its truth by DEG degrees about the vertical first")
     parser.add_argument("--markdown", type=Path, help="also write the table into this Markdown file")
     args = parser.parse_args(argv)
     lines = [HEAD, "|" + "---|" * (HEAD.count("|") - 1)]
@@ -73,7 +95,7 @@ def main(argv=None) -> int:
         refused, errors, seconds = 0, [], []
         cases = min(args.cases, MAX_CASES.get(family, args.cases))
         for seed in range(args.first, args.first + cases):
-            why, found, s = check(family, seed)
+            why, found, s = check(family, seed, args.turn)
             refused += why is not None
             seconds.append(s)
             for e in found:
