@@ -59,8 +59,10 @@ TURNED_NEIGHBOURS = 8
 #: Two neighbour differences in one layer of a grid span a plane whose normal is the grid's axis;
 #: pairs closer to parallel than this sine of their angle give no normal worth counting.
 TURNED_MIN_SINE = 0.3
-#: Normals within this angle (radians) of one another count as one direction ...
+#: Normals within this angle (radians) of one another count as one direction, among this many of
+#: them (a seeded sample) ...
 TURNED_CONE = 0.05
+TURNED_NORMALS = 20_000
 #: ... of which at most this many of the most frequent, each at least this far (radians) from
 #: perpendicular to every axis found, are tried as an axis.
 TURNED_TRIES = 6
@@ -337,8 +339,9 @@ def _turned_steps(points: np.ndarray) -> list[float]:
     keep = length > TURNED_MIN_SINE * size
     if not keep.any():
         return []
-    normals = normals[keep] / length[keep, None]
-    probes = normals[np.random.default_rng(0).permutation(len(normals))[:TURNED_SEEDS]]
+    normals = normals[keep][np.random.default_rng(0).permutation(keep.sum())[:TURNED_NORMALS]]
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    probes = normals[:TURNED_SEEDS]
     crowd = cKDTree(np.vstack([normals, -normals])).query_ball_point(probes, TURNED_CONE, return_length=True)
     near = diff.reshape(-1, 3)
     near = near[np.any(near != 0, axis=1)]
