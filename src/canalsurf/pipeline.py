@@ -1435,9 +1435,10 @@ def _largest_at_junctions(fits: list, skel: Skeleton) -> np.ndarray:
 def _inside_others(fits: list, skel: Skeleton) -> list:
     """Indices of the fitted branches whose spine runs inside other fitted tubes (see MAX_INSIDE_OTHERS).
 
-    They are taken out one at a time, the most inside (and of those the one with the fewest points)
-    first, each against the branches still in: of a tube found twice (two passes, two pieces that
-    overlap) one copy stays.
+    They are taken out one at a time, of those inside others the one with the fewest points (and of
+    those the most inside) first, each against the branches still in: of a tube found twice (two passes,
+    two pieces that overlap) the copy that holds more of its points stays.  The other may have wandered
+    off where few points pin it, and so lie less inside than the copy that did not.
     """
     live = [i for i, f in enumerate(fits) if f]
     if len(live) < 2:
@@ -1472,9 +1473,10 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
         covered[sample[alive[other]]] = True
         share = np.bincount(owner, covered, len(live)) / np.maximum(np.bincount(owner, away, len(live)), 1)
         share[~alive] = 0.0
-        worst = max(range(len(live)), key=lambda n: (share[n], -size[n]))
-        if share[worst] <= MAX_INSIDE_OTHERS:
+        inside = np.flatnonzero(share > MAX_INSIDE_OTHERS)
+        if not len(inside):
             return out
+        worst = min(inside, key=lambda n: (size[n], -share[n]))
         alive[worst] = False
         out.append(live[worst])
 
