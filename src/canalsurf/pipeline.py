@@ -1081,9 +1081,9 @@ def _is_tube(q: dict, noise: float, quantum: float = 0.0) -> tuple[bool, str]:
 
     A tube whose points scatter more than ``MAX_RELATIVE_RESIDUAL`` of its radius, or lie off round by
     more than ``MAX_OUT_OF_ROUND``, passes when the grid of the coordinates (``quantum``,
-    :func:`canalsurf.pointcloud.quantisation_noise`) explains it: a thin pole stored in steps of a third of its radius can be
-    no closer to its surface than that, and along a pole parallel to an axis the rounding is the same in
-    every cross-section, so it stays by sector.
+    :func:`canalsurf.pointcloud.quantisation_noise`) explains it: a thin pole stored in steps of a third
+    of its radius can be no closer to its surface than that, and along a pole parallel to an axis of the
+    grid the rounding is the same in every cross-section, so it stays by sector.
     """
     if q["n"] < MIN_CHECKED_POINTS:
         return False, f"only {q['n']} points lie on the best tube, too few to tell it is one"
