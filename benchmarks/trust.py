@@ -54,11 +54,15 @@ def turned(case, degrees: float):
     if not degrees:
         return case
     turn = Rotation.from_euler("z", degrees, degrees=True).as_matrix().T
+
+    def spine(s: BSpline) -> BSpline:  # a spline turns with its control points
+        return BSpline(s.t, s.c @ turn, s.k)
+
     moved = {"points": case.points @ turn, "normals": case.normals @ turn}
     if isinstance(case, SyntheticNetwork):
-        branches = tuple(replace(b, spine=BSpline(b.spine.t, b.spine.c @ turn, b.spine.k)) for b in case.branches)
+        branches = tuple(replace(b, spine=spine(b.spine)) for b in case.branches)
         return replace(case, branches=branches, junctions=case.junctions @ turn, **moved)
-    return replace(case, spine=BSpline(case.spine.t, case.spine.c @ turn, case.spine.k), **moved)
+    return replace(case, spine=spine(case.spine), **moved)
 
 
 def check(family: str, seed: int, turn: float = 0.0) -> tuple[str | None, list, float]:
