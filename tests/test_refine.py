@@ -229,7 +229,8 @@ def _smoothed_line(gamma, seeds, monkeypatch):
         D = np.diff(np.eye(m), 2, axis=0)
         y = 0.02 * rng.normal(size=len(B))
         floor = SMOOTHING * len(y) / m
-        lam = _gcv_smoothing(B.T @ B, -B.T @ y, D.T @ D, np.zeros(m), float(y @ y), float(len(y)), floor=floor)
+        lam = _gcv_smoothing(B.T @ B, -B.T @ y, D.T @ D, np.zeros(m), float(y @ y), float(len(y)),
+                             stiff=np.zeros((m, m)), floor=floor)
         c = np.linalg.solve(B.T @ B + lam * D.T @ D, B.T @ y)
         rows.append((np.log10(lam / floor), np.sqrt(np.mean((B @ c) ** 2))))
     return np.array(rows)
@@ -244,6 +245,19 @@ def test_gcv_counts_degrees_of_freedom_enough_to_keep_a_line_straight(monkeypatc
     assert (inflated[:, 0] >= top).mean() >= 0.8
     assert (inflated[:, 0] <= 3).mean() <= 0.02
     assert inflated[:, 1].mean() <= 0.95 * plain[:, 1].mean()
+
+
+def test_a_long_gently_curving_spine_is_smoothed_as_the_step_is_taken():
+    """GCV scores the penalty weight on the system the step solves: a 300-radius tube that bends
+    gently is smoothed heavily, as its noise asks.  Scored without the step's stiffness against
+    sliding control points along the spine, heavy weights looked like misfit and this spine came out
+    0.24 % r off on average, against 0.19 scored on the step's system (measured)."""
+    import canalsurf
+
+    tube = synth.make_tube("long-thin", n=20000, rng=SEED)
+    model = canalsurf.reconstruct(tube.points, kind="pipe")
+    r = float(tube.radius(0.5))
+    assert closest_point_distance(tube.spine, model.spine, n=300_000)["mean"] <= 0.0022 * r
 
 
 # --- robust sigma -----------------------------------------------------------------------------------

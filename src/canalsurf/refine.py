@@ -423,9 +423,11 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             cost = np.minimum(res**2, bound**2).sum()
             gain = 0.0
             system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
-            lam = _gcv_smoothing(*system, floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
+            stiff = _stiffness(system[0], spine, segs, closed)
+            lam = _gcv_smoothing(*system, stiff=stiff,
+                                 floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
             for damping in LM_DAMPING:
-                new_spine, new_radius = _step(system, spine, radius, segs, rsegs, closed, lam, damping)
+                new_spine, new_radius = _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping)
                 new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed, start=t)
                 new_cost = np.minimum(new_res**2, bound**2).sum()
                 if new_cost < cost:
@@ -530,24 +532,27 @@ def _gram(rows, cols, key, size):
     return out
 
 
-def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, floor: float) -> float:
+def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, *, stiff, floor: float) -> float:
     """Penalty weight minimising generalised cross-validation, ``nw RSS / (nw - GCV_GAMMA tr H)^2``.
 
     The noise of a scan, not a fixed rule, then decides how much the spine is smoothed: straight,
     well-sampled stretches are averaged over many points while sharp bends keep their shape.  The
     search starts at ``floor``: the straight margins past the ends carry no data, and only the penalty
-    holds them.  One generalised eigendecomposition (Demmler-Reinsch) makes every trial weight cheap.
+    holds them.  Each weight is scored on the system the step solves, ``stiff`` included (without it a
+    heavy weight straightens a bend by sliding control points along the spine, which the linear model
+    charges as misfit and the re-computed footpoints do not).  One generalised eigendecomposition
+    (Demmler-Reinsch) makes every trial weight cheap.
     """
-    M = JtWJ + floor * Pen
-    M += 1e-12 * np.trace(M) / len(M) * np.eye(len(M))
+    M = JtWJ + floor * Pen + stiff
     s, V = eigh(Pen, M)  # V^T M V = I, V^T Pen V = diag(s)
     s = np.maximum(s, 0.0)
+    data = np.einsum("ij,ij->j", V, JtWJ @ V)  # diag(V^T JtWJ V)
     best, best_lam = np.inf, floor
     for lam in floor * GCV_GRID:
         shrink = 1.0 / (1.0 + (lam - floor) * s)  # eigenvalues of (M + (lam - floor) Pen)^-1 in V
         step = -V @ (shrink * (V.T @ (g + lam * (Pen @ x))))
         fit_rss = rss + 2 * step @ g + step @ JtWJ @ step
-        dof = float(np.sum(shrink * (1.0 - floor * s)))  # tr(A^-1 JtWJ), JtWJ = M - floor Pen
+        dof = float(shrink @ data)  # tr(A^-1 JtWJ)
         if GCV_GAMMA * dof >= nw:
             continue
         gcv = nw * max(fit_rss, 0.0) / (nw - GCV_GAMMA * dof) ** 2
@@ -572,18 +577,26 @@ def _tangential(spine: BSpline, m: int, closed: bool, size: int) -> np.ndarray:
     return K
 
 
-def _step(system, spine, radius, segs, rsegs, closed, lam, damping):
-    """One damped Gauss-Newton step with penalty weight ``lam``; returns the new spine and radius."""
+def _stiffness(JtWJ, spine, segs, closed):
+    """What every step adds to ``JtWJ`` besides the penalty: a stiffness against sliding control
+    points along the spine and a small ridge.
+
+    Sliding control points along the spine changes (almost) no distance -- it only re-parameterises
+    the curve, which each pass does anyway -- and the second-difference penalty does not hold a
+    straight stretch's shift or stretch along itself: such steps are stiffened, or rounding moves
+    the spine along itself by radii and the step fails.
+    """
+    m = n_coefficients(segs, closed)
+    scale = max(float(JtWJ.diagonal()[: 3 * m].mean()), 1e-300)
+    return scale * (TANGENT_STIFFNESS * _tangential(spine, m, closed, len(JtWJ)) + RIDGE * np.eye(len(JtWJ)))
+
+
+def _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping):
+    """One damped Gauss-Newton step with penalty weight ``lam`` and :func:`_stiffness` ``stiff``; returns
+    the new spine and radius."""
     JtWJ, g, Pen, x, _, _ = system
     m = n_coefficients(segs, closed)
-    # Sliding control points along the spine changes (almost) no distance -- it only re-parameterises
-    # the curve, which each pass does anyway -- and the second-difference penalty does not hold a
-    # straight stretch's shift or stretch along itself: such steps are stiffened, or rounding moves
-    # the spine along itself by radii and the step fails.
-    diag = JtWJ.diagonal()
-    scale = max(float(diag[: 3 * m].mean()), 1e-300)
-    A = JtWJ + lam * Pen + damping * np.diag(diag) + RIDGE * scale * np.eye(len(diag))
-    A += TANGENT_STIFFNESS * scale * _tangential(spine, m, closed, len(diag))
+    A = JtWJ + lam * Pen + damping * np.diag(JtWJ.diagonal()) + stiff
     x_new = x + np.linalg.solve(A, -g - lam * (Pen @ x))
     ctrl = x_new[: 3 * m].reshape(3, m).T
     if closed:
