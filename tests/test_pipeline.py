@@ -634,6 +634,29 @@ def test_a_pair_of_pieces_refused_is_not_proposed_again():
     assert _pieces_of_one_tube([_piece((0.0, 0, 0), (10.0, 0, 0)), *fits[1:]], skel, refused) == [((0, 1), (1, 0))]
 
 
+@pytest.mark.parametrize(("piece", "radius", "ends", "grown"), [
+    (((-5.0, 0, 0), (4.0, 0, 0)), 1.0, (None, None), True),     # on past the open end, 5 radii
+    (((-5.0, 0, 0), (4.0, 0, 0)), 1.1, (None, None), True),     # ... its radius 10 % larger
+    (((-0.5, 0, 0), (4.0, 0, 0)), 1.0, (None, None), False),    # no farther than a radius past it
+    (((-5.0, 0, 0), (4.0, 0, 0)), 1.3, (None, None), False),    # 30 % larger: another tube
+    (((-5.0, 0, 0), (4.0, 0, 0)), 1.0, (0, None), False),       # the end at a junction
+    (((0.0, -5.0, 0), (0.0, 5.0, 0)), 1.0, (None, None), False),  # across the end
+    (((-5.0, 3.0, 0), (4.0, 3.0, 0)), 1.0, (None, None), False),  # a rack neighbour beside it
+])
+def test_a_tube_grows_into_a_piece_of_it_that_was_dropped(piece, radius, ends, grown):
+    """A pipe from 0 to 20 and a piece dropped as running inside other tubes: the pipe is fitted again
+    to take the piece's points only when its open end lies inside the piece, in line and of its radius
+    (within 15 %), and the piece runs on past that end by more than a radius."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _grown_into
+
+    tube = SimpleNamespace(**vars(_piece((0.0, 0, 0), (20.0, 0, 0))), eq6=1.0)
+    dropped = SimpleNamespace(**vars(_piece(*piece, radius=radius)), eq6=radius)
+    skel = SimpleNamespace(branches=[SimpleNamespace(ends=ends)])
+    assert _grown_into([tube], skel, [dropped]) == ([0] if grown else [])
+
+
 def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
     """The thin set of a pipe broke 4 radii short of its middle (as a scene's sparse subset leaves
     it): the two pieces, each grown towards the other, are joined and fitted as one branch end to end

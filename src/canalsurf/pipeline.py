@@ -1481,6 +1481,42 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
         out.append(live[worst])
 
 
+def _grown_into(fits: list, skel: Skeleton, dropped: list) -> list:
+    """Indices of the fitted branches with an open end inside the tube of one of the ``dropped`` fits, in line with
+    it and of its radius (MAX_PIECE_TURN, MAX_GAP_RADIUS_CHANGE), that runs on past that end by more than
+    PIECE_GAP_RADII radii: a piece of their own tube, found twice, whose skeleton branch ran to a
+    junction (so the pieces were not joined) and whose part outside them was too short to keep on its
+    own.  Left as they are, they stop where that piece began, radii short of the tube's end."""
+    out = []
+    for piece in dropped:
+        t, pts = sample_arclength(piece.spine, max(INSIDE_SAMPLES, int(curve_length(piece.spine) / piece.eq6)))
+        tangent = piece.spine.derivative()(t)
+        tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+        r = piece.radius(t)
+        for k, fit in enumerate(fits):
+            if not fit or fit.closed or k in out:
+                continue
+            for e in (0, 1):
+                if skel.branches[k].ends[e] is not None:
+                    continue
+                p, d = _end_frame(fit.spine, e)
+                n = int(np.argmin(np.linalg.norm(pts - p, axis=1)))
+                if (np.linalg.norm(pts[n] - p) < r[n] and abs(tangent[n] @ d) >= np.cos(np.radians(MAX_PIECE_TURN))
+                        and abs(r[n] - fit.eq6) <= MAX_GAP_RADIUS_CHANGE * max(r[n], fit.eq6)
+                        and ((pts - p) @ d).max() > PIECE_GAP_RADII * fit.eq6):
+                    out.append(k)
+                    break
+    return out
+
+
+def _as_branch(fit: _BranchFit, branch: SkeletonBranch) -> SkeletonBranch:
+    """A skeleton branch along ``fit``'s spine in place of ``branch`` (its ends, its thin points spread
+    evenly along it): the estimate the branch is fitted again from."""
+    t, pts = sample_arclength(fit.spine, len(branch.points))
+    weights = np.full(len(t), branch.weights.sum() / len(t))
+    return SkeletonBranch(pts, weights, fit.radius(t), branch.ends, branch.closed)
+
+
 #: Two fitted branches are pieces of one tube -- the thin set broke along it, or two passes each found
 #: a part -- when their open ends point against each other (within MAX_PIECE_TURN degrees), their radii
 #: differ by no more than MAX_GAP_RADIUS_CHANGE, and either the end of each lies inside the other's
@@ -1669,6 +1705,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                 if len(fits) == before:
                     break
         inside = _inside_others(fits, skel)
+        were = {i: fits[i] for i in inside}
         rest = [False if k in inside else f for k, f in enumerate(fits)]
         last = round_ == MAX_FIT_ROUNDS - 1  # a part cut in the last round could not be fitted
         opened = False  # a part left a junction
@@ -1681,6 +1718,13 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                 skel = replace(skel, branches=[part if k == i else b for k, b in enumerate(skel.branches)])
                 fits[i] = None
                 cut.add(i)
+        if not last:
+            # The points of a piece dropped are the tube's it was a piece of: that tube is fitted again,
+            # from its fit, to grow into them.
+            for k in _grown_into(fits, skel, [were[i] for i in inside if fits[i] is False]):
+                skel = replace(skel, branches=[_as_branch(fits[k], b) if n == k else b
+                                               for n, b in enumerate(skel.branches)])
+                fits[k] = None
         drop = [i for i, f in enumerate(fits) if f is False]
         if not drop and not opened:
             if all(fits):
