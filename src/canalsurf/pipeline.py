@@ -1482,11 +1482,11 @@ def _inside_others(fits: list, skel: Skeleton) -> list:
 
 
 def _grown_into(fits: list, skel: Skeleton, dropped: list) -> list:
-    """Indices of the fitted branches with an open end inside the tube of one of the ``dropped`` fits, in line with
-    it and of its radius (MAX_PIECE_TURN, MAX_GAP_RADIUS_CHANGE), that runs on past that end by more than
-    PIECE_GAP_RADII radii: a piece of their own tube, found twice, whose skeleton branch ran to a
-    junction (so the pieces were not joined) and whose part outside them was too short to keep on its
-    own.  Left as they are, they stop where that piece began, radii short of the tube's end."""
+    """Indices of the fitted branches with an open end inside the tube of one of the ``dropped`` fits,
+    in line with it and of its radius (MAX_PIECE_TURN, MAX_GAP_RADIUS_CHANGE), that runs on past that
+    end by more than PIECE_GAP_RADII radii: a piece of their own tube, found twice, whose skeleton branch
+    ran to a junction (so the pieces were not joined) and whose part outside them was too short to keep
+    on its own.  Left as they are, they stop where that piece began, radii short of the tube's end."""
     out = []
     for piece in dropped:
         t, pts = sample_arclength(piece.spine, max(INSIDE_SAMPLES, int(curve_length(piece.spine) / piece.eq6)))
