@@ -657,6 +657,25 @@ def test_a_tube_grows_into_a_piece_of_it_that_was_dropped(piece, radius, ends, g
     assert _grown_into([tube], skel, [dropped]) == ([0] if grown else [])
 
 
+def test_a_tube_fitted_again_starts_from_its_fit():
+    """The skeleton branch a grown tube is fitted again from runs along its fit, end to end, with the
+    branch's ends (junctions) and its count of thin points."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _as_branch
+    from canalsurf.skeleton import SkeletonBranch
+
+    fit = _piece((0.0, 0, 0), (20.0, 0, 0), radius=0.5)
+    old = SkeletonBranch(np.column_stack([np.linspace(5.0, 20.0, 31), np.full(31, 0.1), np.zeros(31)]),
+                         np.full(31, 3.0), np.full(31, 0.45), (None, 2))
+    new = _as_branch(SimpleNamespace(**vars(fit)), old)
+    assert np.allclose(new.points[[0, -1]], fit.spine(np.array([0.0, 1.0])), atol=1e-9)
+    assert np.allclose(new.points[:, 1:], 0.0, atol=1e-9)
+    assert new.ends == (None, 2) and not new.closed
+    assert new.weights.sum() == pytest.approx(old.weights.sum())
+    assert np.allclose(new.radius, 0.5)
+
+
 def test_a_pipe_whose_skeleton_broke_in_two_is_fitted_as_one_branch():
     """The thin set of a pipe broke 4 radii short of its middle (as a scene's sparse subset leaves
     it): the two pieces, each grown towards the other, are joined and fitted as one branch end to end
