@@ -184,6 +184,36 @@ def test_what_a_pass_hands_on_is_what_lies_on_no_surface_it_found():
     assert _explained(thin, run).all() and not _explained(thin, run, on_surface=True).any()
 
 
+def test_a_tubes_surface_past_the_open_end_of_its_thin_set_lies_on_the_skeleton_continued():
+    """A thin set stops short of a tube's open end (at 20 here, radius 1.6): the tube's surface beyond lies
+    on no surface the skeleton's own nodes describe, but on the skeleton continued straight past its ends
+    for PAST_END_RADII radii; a thin pipe in line beyond the end, and the surface a radius past the
+    continuation, do not."""
+    from canalsurf.pipeline import PAST_END_RADII, _explained, _near, _Pass
+
+    x = np.linspace(0, 20, 401)
+    run = _Pass(scan=None, nrm=None, r0=1.6, p={"H": 0.5}, curved=None, kappa=None, sr=None, kept=None,
+                thin=np.c_[x, 0 * x, 0 * x], r_i=np.full(len(x), 1.6))
+    angle = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    ring = np.c_[np.zeros_like(angle), np.cos(angle), np.sin(angle)]
+    reach = PAST_END_RADII * 1.6
+    past = np.concatenate([ring * 1.6 + [at, 0, 0] for at in (21.5, 20 + 0.9 * reach, -0.9 * reach)])
+    assert not _explained(past[40:], run, on_surface=True).any()
+    assert _near(past, run.past_ends, on_surface=True).all()
+    beyond = np.concatenate([ring * 1.6 + [20 + reach + 1.6, 0, 0], ring * [1, 0.5, 0.5] + [22, 0, 0]])
+    assert not _near(beyond, run.past_ends, on_surface=True).any()
+
+
+def test_a_clean_tubes_end_calls_no_further_pass():
+    """The fig9 pipe of 10^6 points, seed 1: its first pass's skeleton stops 0.85 radii short of one end,
+    and 3 % of the points there lie on no surface it found.  Without its continuation past the end they
+    called a further pass, which found no tube (20 of 21 branches left out) and took four times as long."""
+    tube = canalsurf.make_tube("fig9-pipe", n=1_000_000, rng=1)
+    model = canalsurf.reconstruct(tube.points)
+    assert len(model.diagnostics["scale_radii"]) == 1
+    assert len(model.branches) == 1 and model.kind == "pipe"
+
+
 def _fit_along(points, ends):
     """A pipe fit of radius 1 along the polyline ``points`` (interpolated), ending at junctions ``ends``."""
     from scipy.interpolate import make_interp_spline

@@ -281,15 +281,52 @@ class _Pass:
     pool: np.ndarray | None = None  # indices of the scan's points the pass worked on (None: all)
 
     @cached_property
+    def skeleton(self) -> Skeleton | None:
+        """The skeleton of the thin set (None: it has none)."""
+        try:
+            return skeletonize(self.thin, self.r_i, spacing=C.ORDER_VOXEL_PER_H * self.p["H"])
+        except ReconstructionError:
+            return None
+
+    @cached_property
     def nodes(self) -> tuple | None:
         """A KD-tree of the nodes of the skeleton of the thin set, and their radii (None: it has none).
         Which points the pass explains is asked several times (:func:`_explained`)."""
-        try:
-            skel = skeletonize(self.thin, self.r_i, spacing=C.ORDER_VOXEL_PER_H * self.p["H"])
-        except ReconstructionError:
+        if self.skeleton is None:
             return None
-        return (cKDTree(np.concatenate([b.points for b in skel.branches])),
-                np.concatenate([b.radius for b in skel.branches]))
+        branches = self.skeleton.branches
+        return cKDTree(np.concatenate([b.points for b in branches])), np.concatenate([b.radius for b in branches])
+
+    @cached_property
+    def past_ends(self) -> tuple | None:
+        """:attr:`nodes` of the skeleton continued straight past its open ends (:func:`_past_end`); None
+        where it has none."""
+        if self.skeleton is None:
+            return None
+        nodes = [_past_end(b, end) for b in self.skeleton.branches if not b.closed
+                 for end in (0, -1) if b.ends[end] is None]
+        pts = np.concatenate([p for p, _ in nodes]) if nodes else np.empty((0, 3))
+        return (cKDTree(pts), np.concatenate([r for _, r in nodes])) if len(pts) else None
+
+
+#: A thin set stops short of a tube's open end, where the points meet no other side to shrink to: by up to
+#: 1.5 radii on a clean 10^6-point tube.  Whether a further pass runs is decided without the points on its
+#: skeleton continued straight this many radii past each open end, in steps of a quarter radius; else a
+#: clean tube's end can call a pass that finds nothing there and only costs (four times the tube's time).
+PAST_END_RADII = 2.0
+
+
+def _past_end(branch, end: int) -> tuple:
+    """Nodes continuing a skeleton ``branch`` straight past its first (``end`` 0) or last (-1) vertex,
+    along its chord over the last radius there, and their radii (the end vertex's)."""
+    pts = branch.points if end == -1 else branch.points[::-1]
+    r = float(branch.radius[end])
+    inner = pts[::-1][min(int(np.searchsorted(polyline_arclength(pts[::-1]), r)), len(pts) - 1)]
+    chord = pts[-1] - inner
+    if not np.linalg.norm(chord) > 0:
+        return np.empty((0, 3)), np.empty(0)
+    steps = np.arange(1, int(4 * PAST_END_RADII) + 1) * r / 4
+    return pts[-1] + steps[:, None] * chord / np.linalg.norm(chord), np.full(len(steps), r)
 
 
 def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbours: str, quantum: float,
@@ -414,9 +451,14 @@ def _explained(points: np.ndarray, run: _Pass, *, on_surface: bool = False) -> n
     What a pass hands on to a finer one is what is not on a surface it found: at a coarse scale a rack of
     thin pipes can shrink to one fat branch across them, which is no tube but holds their points inside.
     """
-    if run.nodes is None:
+    return _near(points, run.nodes, on_surface)
+
+
+def _near(points: np.ndarray, nodes: tuple | None, on_surface: bool) -> np.ndarray:
+    """:func:`_explained` by the ``nodes`` (a KD-tree and the nodes' radii; None: none)."""
+    if nodes is None:
         return np.zeros(len(points), bool)
-    tree, node_r = run.nodes
+    tree, node_r = nodes
     d, i = tree.query(points, workers=-1)
     if on_surface:
         return np.abs(d - node_r[i]) < (EXPLAINED_RADII - 1) * node_r[i]
@@ -445,7 +487,8 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         with timer("normals"):
             sample = scan.draw[:EXPLAINED_SAMPLE]
             sample = sample[left[sample]]
-            unexplained = int((~_explained(scan.all_pts[sample], run, on_surface=True)).sum())
+            unexplained = int((~_explained(scan.all_pts[sample], run, on_surface=True)
+                               & ~_near(scan.all_pts[sample], run.past_ends, on_surface=True)).sum())
             estimate = unexplained * len(left) / min(EXPLAINED_SAMPLE, len(left))
             if estimate < least / 2:
                 break
