@@ -205,9 +205,9 @@ def test_a_tubes_surface_past_the_open_end_of_its_thin_set_lies_on_the_skeleton_
 
 
 def test_a_clean_tubes_end_calls_no_further_pass():
-    """The fig9 pipe of 10^6 points, seed 1: its first pass's skeleton stops 0.85 radii short of one end,
-    and 3 % of the points there lie on no surface it found.  Without its continuation past the end they
-    called a further pass, which found no tube (20 of 21 branches left out) and took four times as long."""
+    """The fig9 pipe of 10^6 points, seed 1: its first pass's skeleton stops short of one end, and enough
+    of the points there lie on no surface it found to call a further pass, which found no tube there --
+    unless the points on the skeleton continued past its end are left out of that decision."""
     tube = canalsurf.make_tube("fig9-pipe", n=1_000_000, rng=1)
     model = canalsurf.reconstruct(tube.points)
     assert len(model.diagnostics["scale_radii"]) == 1

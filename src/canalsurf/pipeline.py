@@ -309,10 +309,10 @@ class _Pass:
         return (cKDTree(pts), np.concatenate([r for _, r in nodes])) if len(pts) else None
 
 
-#: A thin set stops short of a tube's open end, where the points meet no other side to shrink to: by up to
-#: 1.5 radii on a clean 10^6-point tube.  Whether a further pass runs is decided without the points on its
-#: skeleton continued straight this many radii past each open end, in steps of a quarter radius; else a
-#: clean tube's end can call a pass that finds nothing there and only costs (four times the tube's time).
+#: A thin set stops short of a tube's open end, where the points meet no other side to shrink to, by about
+#: a radius.  Whether a further pass runs is decided without the points on its skeleton continued straight
+#: this many radii past each open end, in steps of a quarter radius; else a clean tube's end can call a
+#: pass that finds no tube there and only costs time.
 PAST_END_RADII = 2.0
 
 
