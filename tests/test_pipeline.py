@@ -204,6 +204,28 @@ def test_a_tubes_surface_past_the_open_end_of_its_thin_set_lies_on_the_skeleton_
     assert not _near(beyond, run.past_ends, on_surface=True).any()
 
 
+def test_a_skeleton_is_continued_along_its_last_radius_at_each_open_end():
+    """An L-shaped branch of radius 0.5 (along x to 10, then along y to 5): past its last vertex it goes on
+    along y, past its first along -x, a quarter radius apart for PAST_END_RADII radii, with the end's radius;
+    a branch that is a single point has no direction to go on in."""
+    from canalsurf.pipeline import PAST_END_RADII, _past_end
+    from canalsurf.skeleton import SkeletonBranch
+
+    leg = np.linspace(0, 1, 41)[:, None]
+    pts = np.concatenate([leg * [10, 0, 0], [10, 0, 0] + leg[1:] * [0, 5, 0]])
+    radius = np.linspace(0.5, 0.4, len(pts))
+    branch = SkeletonBranch(pts, np.ones(len(pts)), radius, (None, None))
+    steps = np.arange(1, 4 * PAST_END_RADII + 1)[:, None]
+    last, r_last = _past_end(branch, -1)
+    np.testing.assert_allclose(last, [10, 5, 0] + steps * [0, 0.1, 0], atol=1e-12)
+    assert np.all(r_last == 0.4)
+    first, r_first = _past_end(branch, 0)
+    np.testing.assert_allclose(first, steps * [-0.125, 0, 0], atol=1e-12)
+    assert np.all(r_first == 0.5)
+    point = SkeletonBranch(pts[:1], np.ones(1), radius[:1], (None, None))
+    assert len(_past_end(point, -1)[0]) == 0
+
+
 def test_a_clean_tubes_end_calls_no_further_pass():
     """The fig9 pipe of 10^6 points, seed 1: its first pass's skeleton stops short of one end, and enough
     of the points there lie on no surface it found to call a further pass, which found no tube there --
