@@ -316,7 +316,7 @@ class _Pass:
 PAST_END_RADII = 2.0
 
 
-def _past_end(branch, end: int) -> tuple:
+def _past_end(branch: SkeletonBranch, end: int) -> tuple:
     """Nodes continuing a skeleton ``branch`` straight past its first (``end`` 0) or last (-1) vertex,
     along its chord over the last radius there, and their radii (the end vertex's)."""
     pts = branch.points if end == -1 else branch.points[::-1]
