@@ -236,6 +236,37 @@ def _smoothed_line(gamma, seeds, monkeypatch):
     return np.array(rows)
 
 
+@pytest.mark.parametrize("offset", [False, True])
+def test_gcv_on_a_long_spline_chooses_by_blocks_what_it_chooses_densely(monkeypatch, offset):
+    """A system of more than BANDED_UNKNOWNS unknowns is solved by blocks: on noisy samples of a sine
+    (8,000 points, 400 cubic intervals, 24 periods, noise 0.05: an interior weight is best), with or
+    without a constant ``offset`` unknown coupled to all the others (as a pipe's radius is), it chooses
+    the weight the dense solve chooses."""
+    from canalsurf import refine as refine_module
+
+    rng = np.random.default_rng(3)
+    t = np.r_[[0.0] * 3, np.linspace(0.0, 1.0, 401), [1.0] * 3]
+    u = np.sort(rng.random(8000))
+    B = BSpline.design_matrix(u, t, 3).toarray()
+    if offset:
+        B = np.c_[B, np.ones(len(u))]
+    m = B.shape[1]
+    assert m > refine_module.BANDED_UNKNOWNS
+    D = np.diff(np.eye(m), 2, axis=0)
+    if offset:
+        D[:, -1] = 0.0
+    y = np.sin(150 * u) + 0.3 * offset + 0.05 * rng.normal(size=len(u))
+    args = (B.T @ B, -B.T @ y, D.T @ D, np.zeros(m), float(y @ y), float(len(y)))
+    floor = SMOOTHING * len(y) / m
+    stiff = 1e-8 * np.eye(m)
+    assert refine_module._solver(args[0], args[2], stiff) is not None
+    banded = _gcv_smoothing(*args, stiff=stiff, floor=floor)
+    monkeypatch.setattr(refine_module, "BANDED_UNKNOWNS", 10 * m)
+    dense = _gcv_smoothing(*args, stiff=stiff, floor=floor)
+    assert banded == dense
+    assert floor < banded < floor * GCV_GRID[-1]  # an interior weight: the scores were compared
+
+
 def test_gcv_counts_degrees_of_freedom_enough_to_keep_a_line_straight(monkeypatch):
     # A line is what the penalty leaves alone: the heaviest weight is best.  Plain GCV (gamma 1) chose
     # a lighter one on 29 of these 100 seeds, 4 of them at most 10^3 floors (measured); GCV_GAMMA on 14
