@@ -17,7 +17,6 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 BORDER_SHARE = 0.5
 
 
-
 class BlockTridiagonal:
     """A batch of symmetric positive definite matrices of one sparsity pattern, factored block-wise.
 
