@@ -506,6 +506,38 @@ def test_a_fit_whose_growth_fails_keeps_the_tube_it_grew_from(monkeypatch):
     assert abs(ends[0]) < 0.1 and 5.0 < ends[1] < 8.0, ends
 
 
+def test_a_fit_grown_to_the_end_of_its_points_is_not_fitted_again(monkeypatch):
+    """A tube of radius 1 from z = 0 to 6 whose thin set stops at z = 5: its first estimate, continued a
+    radius past that end, already takes every point, and the fit reaches z = 6, grown by a radius.  The
+    points taken about that fit hold none past its end, so a refit would see the ends it saw: the branch
+    is fitted once (on a plant, most grow rounds were such refits)."""
+    import canalsurf.pipeline as pipeline
+    from canalsurf.pipeline import _Estimates, _Fittable, _fit_one
+    from canalsurf.skeleton import Skeleton, SkeletonBranch
+
+    z = np.linspace(0.0, 5.0, 11)
+    branch = SkeletonBranch(np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), np.full(11, 4.0),
+                            np.ones(11), (None, None))
+    rng = np.random.default_rng(0)
+    angle, height = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 6.0, 20_000)
+    points = np.column_stack([np.cos(angle), np.sin(angle), height]) + rng.normal(0.0, 0.005, (20_000, 3))
+    fit_branch, sizes = pipeline._fit_branch, []
+
+    def counted(pts, guess, **kwargs):
+        sizes.append(len(pts))
+        return fit_branch(pts, guess, **kwargs)
+
+    monkeypatch.setattr(pipeline, "_fit_branch", counted)
+    job = {"points": points, "estimates": _Estimates(Skeleton([branch], np.empty((0, 3)), 0.5), {}),
+           "fittable": _Fittable(points, np.ones(20_000, bool)),
+           "kappa": np.ones(20_000), "kind": "pipe", "refine": True, "noise": 0.005, "quantum": 0.0, "loose": None}
+    fit = _fit_one(0, job)
+    assert not isinstance(fit, str), fit
+    assert sizes == [20_000]
+    ends = np.sort(fit.spine(np.array([0.0, 1.0]))[:, 2])
+    assert abs(ends[0]) < 0.1 and abs(ends[1] - 6.0) < 0.1, ends
+
+
 def test_a_junction_the_thin_set_made_between_two_tubes_side_by_side_is_opened_and_each_tube_is_one_branch():
     """Two pipes side by side (radii 0.8 and 0.5, their surfaces 0.75 apart) whose thin sets met for a stretch:
     the skeleton joins them at a junction on the thinner one's axis, from which two branches cross over to

@@ -1163,8 +1163,8 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     """Branch ``i``'s fit and the indices of its points (``idx``), grown where an open end grew towards
     the edge of its points: the points are assigned again about the fit (continued ASSIGN_END_RADII past
     its ends, like the first estimate) and the branch fitted again, until no end grows by more than
-    ``GROW_RADII`` or ``MAX_GROW_ROUNDS``.  The refinement's own end placement stops it at a gap in the
-    points, as before.  A round whose fit fails keeps the fit before it: an end grown into clutter (a
+    ``GROW_RADII``, no point is taken past a grown end, or ``MAX_GROW_ROUNDS``.  The refinement's own end
+    placement stops it at a gap in the points, as before.  A round whose fit fails keeps the fit before it: an end grown into clutter (a
     tree's stem into the flare under its limbs) loses what it grew, not the tube it grew from."""
     free = [e for e in (0, 1) if estimates.skel.branches[i].ends[e] is None and not estimates.guesses[i]["closed"]]
     for _ in range(MAX_GROW_ROUNDS):
@@ -1179,6 +1179,10 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
         estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
         grown_idx = _assign(points, estimates, fittable, i)
+        # No point taken past a free end: the refit would see the ends it saw (on a plant, most rounds).
+        new = points[np.setdiff1d(grown_idx, idx)]
+        if not any(((new - fit.spine(float(e))) @ outward[e] > 0.0).any() for e in free):
+            break
         try:
             fit = _fit_branch(points[grown_idx], estimates.guesses[i], kind=kind, refine=True, was=fit.kind)
         except ReconstructionError:
