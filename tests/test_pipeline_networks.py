@@ -506,44 +506,6 @@ def test_a_fit_whose_growth_fails_keeps_the_tube_it_grew_from(monkeypatch):
     assert abs(ends[0]) < 0.1 and 5.0 < ends[1] < 8.0, ends
 
 
-@pytest.mark.parametrize("thin_end", [23.0, 20.0])
-def test_a_fit_grown_to_the_end_of_its_points_is_fitted_again_only_for_more_points_or_knots(monkeypatch, thin_end):
-    """A tube of radius 1 from z = 0 to 24 whose thin set stops short of its end: its first estimate,
-    continued a radius past that end, takes the points up to there, and the fit grows to z = 24.  Where
-    the thin set stopped at z = 23, the points taken about the grown fit hold none past its end and its
-    spine asks for 4 % more knots: a refit would fit about the same model to the ends it had, and the
-    branch is fitted once.  Where it stopped at z = 20, the first fit takes the points up to z = 21 only,
-    and is fitted again to those beyond."""
-    import canalsurf.pipeline as pipeline
-    from canalsurf.pipeline import _Estimates, _Fittable, _fit_one
-    from canalsurf.skeleton import Skeleton, SkeletonBranch
-
-    z = np.linspace(0.0, thin_end, int(2 * thin_end) + 1)
-    branch = SkeletonBranch(np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), np.full(len(z), 4.0),
-                            np.ones(len(z)), (None, None))
-    rng = np.random.default_rng(0)
-    angle, height = rng.uniform(0.0, 2 * np.pi, 40_000), rng.uniform(0.0, 24.0, 40_000)
-    points = np.column_stack([np.cos(angle), np.sin(angle), height]) + rng.normal(0.0, 0.005, (40_000, 3))
-    fit_branch, sizes = pipeline._fit_branch, []
-
-    def counted(pts, guess, **kwargs):
-        sizes.append(len(pts))
-        return fit_branch(pts, guess, **kwargs)
-
-    monkeypatch.setattr(pipeline, "_fit_branch", counted)
-    job = {"points": points, "estimates": _Estimates(Skeleton([branch], np.empty((0, 3)), 0.5), {}),
-           "fittable": _Fittable(points, np.ones(40_000, bool)),
-           "kappa": np.ones(40_000), "kind": "pipe", "refine": True, "noise": 0.005, "quantum": 0.0, "loose": None}
-    fit = _fit_one(0, job)
-    assert not isinstance(fit, str), fit
-    if thin_end == 23.0:
-        assert sizes == [40_000]
-    else:
-        assert len(sizes) > 1 and sizes[0] < sizes[1] == 40_000, sizes
-    ends = np.sort(fit.spine(np.array([0.0, 1.0]))[:, 2])
-    assert abs(ends[0]) < 0.1 and abs(ends[1] - 24.0) < 0.1, ends
-
-
 def test_a_junction_the_thin_set_made_between_two_tubes_side_by_side_is_opened_and_each_tube_is_one_branch():
     """Two pipes side by side (radii 0.8 and 0.5, their surfaces 0.75 apart) whose thin sets met for a stretch:
     the skeleton joins them at a junction on the thinner one's axis, from which two branches cross over to

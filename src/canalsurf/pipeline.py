@@ -76,9 +76,6 @@ ASSIGN_END_RADII = 1.0
 #: would otherwise cut the model short there, with nothing to show it).
 GROW_RADII = 0.5
 MAX_GROW_ROUNDS = 6
-#: ... but a round that takes no point past a grown end is the last unless the grown spine asks for more
-#: than this share more knot intervals than it was fitted with (its knots then follow its length).
-GROW_KNOT_SLACK = 0.1
 #: Rounds of "fit, drop the branches that are no tube, join the branches they separated".
 MAX_FIT_ROUNDS = 3
 
@@ -1166,10 +1163,9 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     """Branch ``i``'s fit and the indices of its points (``idx``), grown where an open end grew towards
     the edge of its points: the points are assigned again about the fit (continued ASSIGN_END_RADII past
     its ends, like the first estimate) and the branch fitted again, until no end grows by more than
-    ``GROW_RADII``, a round takes no point past its ends (and the grown spine asks for at most
-    ``GROW_KNOT_SLACK`` more knots), or ``MAX_GROW_ROUNDS``.  The refinement's own end placement stops it at
-    a gap in the points, as before.  A round whose fit fails keeps the fit before it: an end grown into
-    clutter (a tree's stem into the flare under its limbs) loses what it grew, not the tube it grew from."""
+    ``GROW_RADII`` or ``MAX_GROW_ROUNDS``.  The refinement's own end placement stops it at a gap in the
+    points, as before.  A round whose fit fails keeps the fit before it: an end grown into clutter (a
+    tree's stem into the flare under its limbs) loses what it grew, not the tube it grew from."""
     free = [e for e in (0, 1) if estimates.skel.branches[i].ends[e] is None and not estimates.guesses[i]["closed"]]
     for _ in range(MAX_GROW_ROUNDS):
         g = estimates.guesses[i]
@@ -1180,15 +1176,9 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
         if not any((fit.spine(float(e)) - g["spine"](float(e))) @ outward[e] > GROW_RADII * g["eq6"] for e in free):
             break
         length, grown = curve_length(g["spine"]), curve_length(fit.spine)
-        segments = tuple(max(n, int(round(n * grown / length))) for n in g["segments"])
-        estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": segments})
+        nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
+        estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
         grown_idx = _assign(points, estimates, fittable, i)
-        # With no point taken past a grown end, a refit would fit about the same model to the ends it had
-        # (on a plant, most rounds): only a spine grown long enough to ask for more knots is refitted.
-        new = points[np.setdiff1d(grown_idx, idx)]
-        more_knots = any(s > (1 + GROW_KNOT_SLACK) * n for s, n in zip(segments, g["segments"]))
-        if not more_knots and not any(((new - fit.spine(float(e))) @ outward[e] > 0).any() for e in free):
-            break
         try:
             fit = _fit_branch(points[grown_idx], estimates.guesses[i], kind=kind, refine=True, was=fit.kind)
         except ReconstructionError:
