@@ -541,14 +541,47 @@ def test_the_points_past_a_hook_at_an_open_end_are_cut(bend_radius, ends, cut):
     2 (the tightest real one) keeps them, as does a hook at a junction's end (there the tubes unite)."""
     from types import SimpleNamespace
 
-    from canalsurf.pipeline import _hooked_end
+    from canalsurf.pipeline import _hooked_end, _hooks
     from canalsurf.spine import constant_spline
 
     spine, straight = _hooked_spine(bend_radius)
     t = np.linspace(0.0, 1.0, 2001)
-    tail = _hooked_end(SimpleNamespace(closed=False, spine=spine, radius=constant_spline(1.0), t=t), ends)
+    fit = SimpleNamespace(closed=False, spine=spine, radius=constant_spline(1.0), t=t)
+    tail = _hooked_end(fit, _hooks(fit, ends))
     assert not tail[t < straight - 0.05].any()
     assert tail[t > straight + 0.1].all() if cut else not tail.any()
+
+
+def test_a_hooked_end_keeps_the_points_of_its_tube_going_on_straight():
+    """A pipe of radius 1 along x to x = 12 whose fitted spine hooked at x = 10 towards the end of a thinner
+    neighbour beside it: fitted again from its spine cut inside the hook and continued straight, with its
+    own points past the hook and none of the neighbour's."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _hooked_end, _hooks, _straight_on
+    from canalsurf.refine import footpoints
+    from canalsurf.spine import constant_spline
+
+    rng = np.random.default_rng(0)
+    spine, _ = _hooked_spine(0.5)
+    ring = rng.uniform(0.0, 2 * np.pi, 6000)
+    x = rng.uniform(0.0, 12.0, 6000)
+    own = np.c_[x, (1 + rng.normal(0, 0.01, 6000))[:, None] * np.c_[np.cos(ring), np.sin(ring)]]
+    ring, x = rng.uniform(0.0, 2 * np.pi, 600), rng.uniform(9.0, 12.0, 600)
+    other = np.c_[x, 2.5 + 0.5 * np.cos(ring), 0.5 * np.sin(ring)]
+    points = np.vstack([own, other])
+    radius = constant_spline(1.0)
+    t, residual = footpoints(points, spine, radius, closed=False)
+    fit = SimpleNamespace(closed=False, spine=spine, radius=radius, eq6=1.0, segments=(60, 10), t=t,
+                          residual=residual, points=points)
+    hooks = _hooks(fit, (None, None))
+    assert list(hooks) == [1]
+    guess, on = _straight_on(fit, hooks, {"eq6": 1.0})
+    line = guess["spine"](np.linspace(0.0, 1.0, 200))
+    assert np.abs(line[:, 1:]).max() < 0.05 and line[-1, 0] > 11.5
+    assert guess["eq6"] == 1.0 and guess["segments"] == (60, 10)
+    past = _hooked_end(fit, hooks)
+    assert on[:6000][past[:6000]].mean() > 0.95 and not on[6000:].any()
 
 
 @pytest.mark.parametrize(("sparse", "share", "stray", "ends", "cut"), [

@@ -1274,12 +1274,12 @@ def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
 HOOK_RADII = 4.0
 
 
-def _hooked_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
-    """Which of the fit's points lie towards an open end beyond a bend tighter than the radius within
-    HOOK_RADII of that end (they are fitted again without them)."""
-    tail = np.zeros(len(fit.t), bool)
+def _hooks(fit: _BranchFit, ends: tuple) -> dict:
+    """``{end: t}``: the spine's parameter ``t`` past which each hooked open end turns tighter than the
+    radius within HOOK_RADII of that end."""
+    hooks = {}
     if fit.closed:
-        return tail
+        return hooks
     t, pts = sample_arclength(fit.spine, END_SAMPLES)
     r = fit.radius(t)
     s = polyline_arclength(pts)
@@ -1287,8 +1287,53 @@ def _hooked_end(fit: _BranchFit, ends: tuple) -> np.ndarray:
     for end, near in ((0, s <= HOOK_RADII * r), (1, s >= s[-1] - HOOK_RADII * r)):
         hook = t[tight & near]
         if ends[end] is None and len(hook):
-            tail |= fit.t <= hook.max() if end == 0 else fit.t >= hook.min()
+            hooks[end] = hook.max() if end == 0 else hook.min()
+    return hooks
+
+
+def _hooked_end(fit: _BranchFit, hooks: dict) -> np.ndarray:
+    """Which of the fit's points lie past its ``hooks`` (:func:`_hooks`; they are fitted again without
+    them, but for those on the tube going on straight: :func:`_straight_on`)."""
+    tail = np.zeros(len(fit.t), bool)
+    for end, t in hooks.items():
+        tail |= fit.t <= t if end == 0 else fit.t >= t
     return tail
+
+
+def _straight_on(fit: _BranchFit, hooks: dict, guess: dict) -> tuple[dict, np.ndarray]:
+    """The estimate to fit a branch with ``hooks`` again from, and which of its points lie on it past them.
+
+    A hook is an end that turned to another tube's points (a rack's pipes end side by side), but the
+    points there are not all that tube's: the branch's own tube went on straight to its end, and its
+    points past the hook, cut with it, would leave the model radii short.  The estimate is the fit's
+    spine cut inside the hooks and continued straight as far as it ran past the cut and ASSIGN_END_RADII
+    on (like a first estimate), the radius held; the points kept lie within the outlier cut of its
+    surface, towards a hooked end.
+    """
+    # Cut HOOK_RADII / 2 radii inside each hook, where the spine has stopped turning.
+    inside = HOOK_RADII / 2 * fit.eq6 / curve_length(fit.spine)
+    a, b = (hooks[0] + inside if 0 in hooks else 0.0), (hooks[1] - inside if 1 in hooks else 1.0)
+    if b - a < 0.5:  # hooked along most of it: nothing straight to go on from
+        return guess, np.zeros(len(fit.t), bool)
+    nseg, rseg = fit.segments
+    cut, (radius,), _ = arclength_reparametrize(fit.spine, n_segments=nseg, closed=False, a=a, b=b,
+                                                extra=[(lambda t: fit.radius(np.clip(t, a, b)), rseg)])
+    length = curve_length(cut)
+    scale, past = curve_length(fit.spine) / length, ASSIGN_END_RADII * fit.eq6 / length
+    # On along the chord of the next HOOK_RADII radii, not the tangent: a fit's spine is never quite straight.
+    spine, (radius,), _ = arclength_reparametrize(
+        extended(cut, HOOK_RADII * fit.eq6 / length, turn=0.0), n_segments=nseg, closed=False,
+        a=-(a * scale + past) if 0 in hooks else 0.0, b=1 + (1 - b) * scale + past if 1 in hooks else 1.0,
+        extra=[(lambda t, f=radius: f(np.clip(t, 0.0, 1.0)), rseg)])
+    t, res = footpoints(fit.points, spine, radius, closed=False)
+    # Towards a hooked end only: past a gap at the other end, points on the fit's surface are another
+    # tube in line (:func:`_stray_tail`).
+    hooked_side = np.zeros(len(fit.t), bool)
+    for end in hooks:
+        hooked_side |= fit.t < 0.5 if end == 0 else fit.t >= 0.5
+    on = ((np.abs(res - np.median(fit.residual)) <= outlier_cut(fit.residual, fit.eq6))
+          & (t > 0.0) & (t < 1.0) & hooked_side)
+    return {**guess, "spine": spine, "radius": radius, "segments": fit.segments}, on
 
 
 #: A stretch at an open end whose spine holds, per radius of its length, fewer of the fit's inliers than
@@ -1356,12 +1401,17 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
         if job["refine"]:
             fit, idx = _grow(points, fit, idx, i, estimates, job["fittable"], job["kind"])
             ends = estimates.skel.branches[i].ends
-            tail = _stray_tail(fit, estimates.guesses[i], ends) | _hooked_end(fit, ends) | _sparse_end(fit, ends)
+            hooks = _hooks(fit, ends)
+            tail = _stray_tail(fit, estimates.guesses[i], ends) | _hooked_end(fit, hooks) | _sparse_end(fit, ends)
             if tail.any():
+                guess = estimates.guesses[i]
+                if hooks:
+                    guess, on = _straight_on(fit, hooks, guess)
+                    tail &= ~on
                 idx = idx[~tail]
                 if len(idx) < C.POINTS_PER_SEGMENT:
                     return f"only {len(idx)} points are left once the strays at its ends are cut"
-                fit = _fit_branch(points[idx], estimates.guesses[i], kind=job["kind"], refine=True)
+                fit = _fit_branch(points[idx], guess, kind=job["kind"], refine=True)
             if job["loose"] is not None and _judged(fit, idx, job)[0]:
                 # Judged on the points whose cross-section was found before it takes back the others: a
                 # strip of ground, no tube, would take in more of the ground and could pass for one.

@@ -280,9 +280,9 @@ class RefineResult:
     iterations: int
 
 
-def extended(f: BSpline, span: float = 0.0):
+def extended(f: BSpline, span: float = 0.0, turn: float = HOOK_DEGREES):
     """``f`` continued beyond [0, 1] by its tangent line at each end -- or, for a curve whose tangent
-    there is turned more than ``HOOK_DEGREES`` from its chord over the last ``span`` of its parameter
+    there is turned more than ``turn`` degrees from its chord over the last ``span`` of its parameter
     (at most half of it), along that chord.
 
     A cubic's own end polynomial curls away when extrapolated; a tube that goes on past the current
@@ -296,7 +296,7 @@ def extended(f: BSpline, span: float = 0.0):
         chord = (f(np.array([span, 1.0])) - f(np.array([0.0, 1.0 - span]))) / span
         cos = np.einsum("ij,ij->i", rate, chord) / np.maximum(
             np.linalg.norm(rate, axis=1) * np.linalg.norm(chord, axis=1), 1e-300)
-        hooked = cos < np.cos(np.radians(HOOK_DEGREES))
+        hooked = cos < np.cos(np.radians(turn))
         rate[hooked] = chord[hooked]
 
     def g(t):
