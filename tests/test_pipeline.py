@@ -584,6 +584,26 @@ def test_a_hooked_end_keeps_the_points_of_its_tube_going_on_straight():
     assert on[:6000][past[:6000]].mean() > 0.95 and not on[6000:].any()
 
 
+def test_a_hook_at_the_very_end_is_cut_with_its_points():
+    """A spine that curls within STRAIGHT_ON_RADII of its open end (a one-sided scan's end on a coarse
+    grid) is fitted again from its first estimate, without the points past the curl."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import STRAIGHT_ON_RADII, _hooks, _straight_on
+    from canalsurf.spine import constant_spline, curve_length
+
+    spine, straight = _hooked_spine(0.3, straight=20.0, tail=0.0)
+    assert (1 - straight) * curve_length(spine) < STRAIGHT_ON_RADII  # the curl's arc, 0.47 radii
+    t = np.linspace(0.0, 1.0, 2001)
+    fit = SimpleNamespace(closed=False, spine=spine, radius=constant_spline(1.0), eq6=1.0, segments=(60, 10),
+                          t=t, residual=np.zeros(len(t)), points=spine(t))
+    hooks = _hooks(fit, (None, None))
+    assert list(hooks) == [1]
+    first = {"eq6": 1.0}
+    guess, on = _straight_on(fit, hooks, first)
+    assert guess is first and not on.any()
+
+
 @pytest.mark.parametrize(("sparse", "share", "stray", "ends", "cut"), [
     # an end grown 8 radii across a rack's ends: a few inliers per radius among strays -- cut
     (8.0, 0.05, 0.7, (None, None), True),

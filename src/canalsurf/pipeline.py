@@ -1272,6 +1272,11 @@ def _stray_tail(fit: _BranchFit, guess: dict, ends: tuple) -> np.ndarray:
 #: radius above 1: the surface would pass through itself) has turned to another tube's points -- a pipe's
 #: end among its neighbours' ends in a rack -- where no elbow bends so tightly.
 HOOK_RADII = 4.0
+#: A hook farther than this many radii from its end cuts a stretch of the tube with it: the points of that
+#: stretch that lie on the tube going on straight are kept (:func:`_straight_on`).  Nearer, the points cut
+#: are the end's own few, which a one-sided scan's coarse grid curls (a pole's ends, ``trust.py``): the
+#: branch is fitted again without them, from its first estimate.
+STRAIGHT_ON_RADII = 1.0
 
 
 def _hooks(fit: _BranchFit, ends: tuple) -> dict:
@@ -1304,25 +1309,29 @@ def _straight_on(fit: _BranchFit, hooks: dict, guess: dict) -> tuple[dict, np.nd
     """The estimate to fit a branch with ``hooks`` again from, and which of its points lie on it past them.
 
     A hook is an end that turned to another tube's points (a rack's pipes end side by side), but the
-    points there are not all that tube's: the branch's own tube went on straight to its end, and its
-    points past the hook, cut with it, would leave the model radii short.  The estimate is the fit's
+    points there are not all that tube's: the branch's own tube went on straight to its end, and where
+    the hook lies more than STRAIGHT_ON_RADII from the end, its points past the hook, cut with it, would
+    leave the model radii short (refitted from the first estimate, which stopped short of them as well:
+    a rack pipe of the 10⁸-point plant, ``bench.py --stream``).  The estimate is the fit's
     spine cut inside the hooks and continued straight as far as it ran past the cut and ASSIGN_END_RADII
     on (like a first estimate), the radius held; the points kept lie within the outlier cut of its
-    surface, towards a hooked end.
+    surface, towards a hooked end.  With no hook that far from its end, ``guess`` and none.
     """
+    length = curve_length(fit.spine)
+    hooks = {end: t for end, t in hooks.items() if (t if end == 0 else 1.0 - t) * length > STRAIGHT_ON_RADII * fit.eq6}
     # Cut HOOK_RADII / 2 radii inside each hook, where the spine has stopped turning.
-    inside = HOOK_RADII / 2 * fit.eq6 / curve_length(fit.spine)
+    inside = HOOK_RADII / 2 * fit.eq6 / length
     a, b = (hooks[0] + inside if 0 in hooks else 0.0), (hooks[1] - inside if 1 in hooks else 1.0)
-    if b - a < 0.5:  # hooked along most of it: nothing straight to go on from
+    if not hooks or b - a < 0.5:  # none far from its end, or hooked along most of it
         return guess, np.zeros(len(fit.t), bool)
     nseg, rseg = fit.segments
     cut, (radius,), _ = arclength_reparametrize(fit.spine, n_segments=nseg, closed=False, a=a, b=b,
                                                 extra=[(lambda t: fit.radius(np.clip(t, a, b)), rseg)])
-    length = curve_length(cut)
-    scale, past = curve_length(fit.spine) / length, ASSIGN_END_RADII * fit.eq6 / length
+    per_radius = fit.eq6 / curve_length(cut)  # a radius in the cut spine's parameter
+    scale, past = length / curve_length(cut), ASSIGN_END_RADII * per_radius
     # On along the chord of the next HOOK_RADII radii, not the tangent: a fit's spine is never quite straight.
     spine, (radius,), _ = arclength_reparametrize(
-        extended(cut, HOOK_RADII * fit.eq6 / length, turn=0.0), n_segments=nseg, closed=False,
+        extended(cut, HOOK_RADII * per_radius, turn=0.0), n_segments=nseg, closed=False,
         a=-(a * scale + past) if 0 in hooks else 0.0, b=1 + (1 - b) * scale + past if 1 in hooks else 1.0,
         extra=[(lambda t, f=radius: f(np.clip(t, 0.0, 1.0)), rseg)])
     t, res = footpoints(fit.points, spine, radius, closed=False)
