@@ -130,3 +130,24 @@ def test_the_branch_nearest_on_average_is_the_one_every_tree_queried_finds(seed)
         pts = rng.normal(rng.uniform(-5, 5, 3), rng.uniform(0.1, 4.0), (int(rng.integers(1, 200)), 3))
         every = [tree.query(pts)[0].mean() for tree in trees]
         assert _nearest_on_average(pts, trees, boxes) == int(np.argmin(every))
+
+
+def test_model_error_tells_a_pipe_from_a_canal_by_the_tube_a_branch_lies_along():
+    """A branch is of the right kind where it is a pipe exactly when the true tube nearest to most of it
+    has a constant radius; here the branches lie 0.02 off a pipe (y = 0) or a canal (y = 10)."""
+    from types import SimpleNamespace
+
+    from canalsurf.metrics import model_error
+
+    u = np.linspace(0.0, 1.0, 20)
+    pipe = SimpleNamespace(spine=make_interp_spline(u, np.c_[10 * u, 0 * u, 0 * u], k=3), radius=constant_spline(1.0))
+    canal = SimpleNamespace(spine=_shifted(pipe.spine, [0.0, 10.0, 0.0]),
+                            radius=make_interp_spline(u, 1 + 0.3 * u, k=3))
+
+    def branch(kind, y):
+        return SimpleNamespace(id=0, kind=kind, spine=_shifted(pipe.spine, [0.0, y + 0.02, 0.0]),
+                               radius=constant_spline(1.0), diagnostics={"quality": "good"})
+
+    network = SimpleNamespace(branches=[branch("pipe", 0), branch("canal", 0), branch("canal", 10), branch("pipe", 10)],
+                              junctions=[])
+    assert [e["kind_right"] for e in model_error(network, [pipe, canal])] == [True, False, True, False]

@@ -323,6 +323,40 @@ def test_what_lies_past_a_long_gap_at_an_open_end_is_cut_unless_it_is_the_same_t
     assert tail[5000:].mean() > 0.99 if cut else not tail.any()
 
 
+@pytest.mark.parametrize("seen", ["one side", "all round"])
+def test_a_canal_fit_must_beat_a_pipe_that_moves_instead(seen):
+    """Seen over 120 degrees, a pipe (radius 1, 1 % noise) puts its points where a canal does whose
+    radius swings by 10 % while its spine moves away by as much, but for a misfit of up to 5 % at the
+    arc's edges: the shifted pipe fits them to their noise.  Seen all round, a canal whose radius
+    grows from 1 to 1.2 has no such imitation: the shifted pipe misfits it ten times over."""
+    from canalsurf.pipeline import _shifted_pipe_rss
+    from canalsurf.refine import RefineResult, footpoints
+    from canalsurf.spine import pspline_fit
+
+    rng = np.random.default_rng(0)
+    n, u = 4000, np.linspace(0.0, 1.0, 50)
+    x = rng.uniform(0, 10, n)
+    if seen == "one side":
+        angle, truth = rng.uniform(-np.pi / 3, np.pi / 3, n), np.ones(n)
+        swing = 0.1 * np.sin(2 * np.pi * u)
+        spine = pspline_fit(u, np.c_[10 * u, -swing, np.zeros(50)], n_segments=8)
+        radius = pspline_fit(u, 1 + swing, n_segments=8)
+    else:
+        angle, truth = rng.uniform(0, 2 * np.pi, n), 1 + 0.02 * x
+        spine = pspline_fit(u, np.c_[10 * u, np.zeros((50, 2))], n_segments=8)
+        radius = pspline_fit(u, 1 + 0.2 * u, n_segments=8)
+    r = truth + rng.normal(scale=0.01, size=n)
+    points = np.column_stack([x, r * np.cos(angle), r * np.sin(angle)])
+    t, residual = footpoints(points, spine, radius, closed=False)
+    canal = RefineResult(spine, radius, t, residual, np.ones(n, bool), 1)
+    mine = np.ones(n, bool)
+    shifted = _shifted_pipe_rss(points, canal, mine, 0.5, 1.0)
+    if seen == "one side":
+        assert np.abs(residual).max() > 0.04 and shifted < 1.2 * n * 0.01**2
+    else:
+        assert shifted > 10 * (residual**2).sum()
+
+
 @pytest.mark.parametrize("bad", ["ran off", "folded"])
 def test_a_canal_fit_that_went_wrong_does_not_take_the_pipe_fit_with_it(monkeypatch, bad):
     """A canal fit whose radius ran off to several times the first estimate's (here 5 against 1.2, its

@@ -982,8 +982,11 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was
             cut = outlier_cut(fits["canal"].residual, eq6)
             mine = ~_unscored(points, fits["pipe"], closed, eq6)
             rss = {name: float(np.minimum(f.residual[mine]**2, cut**2).sum()) for name, f in fits.items()}
+            # A pipe beside whose points the spine shifts as the radius would change explains a one-sided
+            # scan about as well (:func:`_shifted_pipe_rss`); the canal must beat that pipe too.
+            rss_pipe = min(rss["pipe"], _shifted_pipe_rss(points[mine], fits["canal"], mine, cut, eq6))
             samples = fits["canal"].radius(np.linspace(0, 1, 200))
-            kind = "canal" if prefer_canal(rss["pipe"], rss["canal"], int(mine.sum()), rseg + 2, samples) else "pipe"
+            kind = "canal" if prefer_canal(rss_pipe, rss["canal"], int(mine.sum()), rseg + 2, samples) else "pipe"
             if kind == "canal" and _gapped(fits["canal"], float(np.mean(samples)), closed):
                 kind = "pipe"
         spine, radius, t = fits[kind].spine, fits[kind].radius, fits[kind].t
@@ -1023,6 +1026,50 @@ def _unscored(points: np.ndarray, pipe: RefineResult, closed: bool, eq6: float) 
             past = (points[at] - pipe.spine(end)) @ (sign * tangent / np.linalg.norm(tangent))
             out[at[past <= eq6]] = True
     return out
+
+
+def _shifted_pipe_rss(points: np.ndarray, canal: RefineResult, mine: np.ndarray, cut: float,
+                      eq6: float) -> float:
+    """Truncated residual sum of squares, on ``points``, of the pipe that imitates a ``canal`` fit by
+    moving its spine instead of changing its radius.
+
+    Seen from one side, a tube whose radius grows by ``dr`` and one whose axis moves ``dr`` away from
+    the scanner put their points (almost) in the same place: only the points seen at a slant tell them
+    apart, by ``dr (1 - cos phi)``.  The imitation is the canal's spine moved, at each station (``eq6``
+    long), along the mean direction ``m`` of its points from it by ``k r(t) + c``, with a constant
+    radius ``rho``; to first order a point's residual is then ``e + r(t) - rho - (k r(t) + c) cos phi``
+    with ``cos phi = u . m``, and ``rho, k, c`` are fitted by least squares to the inliers.  On a scan
+    all round, ``cos phi`` averages to zero at every station and the imitation gains nothing.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        The points the fits are compared on.
+    canal : RefineResult
+        The canal fit, on a superset of ``points`` selected by ``mine``.
+    mine : ndarray of bool
+    cut : float
+        Residuals count as at most ``cut`` (the comparison's outlier cut).
+    eq6 : float
+        The branch's first radius estimate: the stations' length.
+
+    Returns
+    -------
+    float
+    """
+    t, e = canal.t[mine], canal.residual[mine]
+    off = points - canal.spine(t)
+    u = off / np.maximum(np.linalg.norm(off, axis=1), 1e-300)[:, None]
+    station = (t * curve_length(canal.spine) / eq6).astype(int)
+    mean = np.stack([np.bincount(station, weights=u[:, i]) for i in range(3)], axis=1)
+    cos = np.einsum("ij,ij->i", u, mean[station] / np.maximum(np.linalg.norm(mean[station], axis=1), 1e-300)[:, None])
+    r = canal.radius(t)
+    design = np.column_stack([np.ones(len(t)), r * cos, cos])
+    inlier = np.abs(e) <= cut
+    if inlier.sum() <= design.shape[1]:
+        return np.inf
+    coef = np.linalg.lstsq(design[inlier], (e + r)[inlier], rcond=None)[0]
+    return float(np.minimum((e + r - design @ coef) ** 2, cut**2).sum())
 
 
 #: A pipe fit's radius is steady where a radius function fitted to its points' distances from its spine
