@@ -66,9 +66,14 @@ CYCLE_PASSES = 8
 SUBSET_POINTS = 5_000
 SUBSET_FACTOR = 2
 #: Ridge on every coefficient of a Gauss-Newton step, and stiffness against moving a control point
-#: along the spine, relative to the mean diagonal of J^T J on the spine's coefficients.
+#: along the spine, relative to the mean diagonal of J^T J on the spine's coefficients.  A slide only
+#: re-parameterises the spine, which each pass undoes; on a pipe, cheap slides let the spine's knots
+#: crowd into a tight bend.  On a canal they also crowd the radius function's knots where the radius
+#: changes -- a larger model than knots by arc length -- and cross-validation, finding the fit better
+#: for it, smoothed a reducer's straight spine least (test_refine): there slides are stiffer.
 RIDGE = 1e-8
 TANGENT_STIFFNESS = 0.01
+CANAL_TANGENT_STIFFNESS = 1.0
 #: Systems of more unknowns than this are solved by blocks (:class:`~canalsurf._banded.BlockTridiagonal`):
 #: below it a dense solve costs less (measured, one thread).
 BANDED_UNKNOWNS = 200
@@ -427,7 +432,7 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             cost = np.minimum(res**2, bound**2).sum()
             gain = 0.0
             system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
-            stiff = _stiffness(system[0], spine, segs, closed)
+            stiff = _stiffness(system[0], spine, segs, closed, rsegs is not None)
             solver = _solver(system[0], system[2], stiff)
             lam = _gcv_smoothing(*system, stiff=stiff, solver=solver,
                                  floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
@@ -595,9 +600,9 @@ def _tangential(spine: BSpline, m: int, closed: bool, size: int) -> np.ndarray:
     return K
 
 
-def _stiffness(JtWJ, spine, segs, closed):
+def _stiffness(JtWJ, spine, segs, closed, canal):
     """What every step adds to ``JtWJ`` besides the penalty: a stiffness against sliding control
-    points along the spine and a small ridge.
+    points along the spine (more on a ``canal``) and a small ridge.
 
     Sliding control points along the spine changes (almost) no distance -- it only re-parameterises
     the curve, which each pass does anyway -- and the second-difference penalty does not hold a
@@ -606,7 +611,8 @@ def _stiffness(JtWJ, spine, segs, closed):
     """
     m = n_coefficients(segs, closed)
     scale = max(float(JtWJ.diagonal()[: 3 * m].mean()), 1e-300)
-    return scale * (TANGENT_STIFFNESS * _tangential(spine, m, closed, len(JtWJ)) + RIDGE * np.eye(len(JtWJ)))
+    slide = CANAL_TANGENT_STIFFNESS if canal else TANGENT_STIFFNESS
+    return scale * (slide * _tangential(spine, m, closed, len(JtWJ)) + RIDGE * np.eye(len(JtWJ)))
 
 
 def _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping, solver: BlockTridiagonal | None):
