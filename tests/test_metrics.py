@@ -132,9 +132,9 @@ def test_the_branch_nearest_on_average_is_the_one_every_tree_queried_finds(seed)
         assert _nearest_on_average(pts, trees, boxes) == int(np.argmin(every))
 
 
-def test_model_error_tells_a_pipe_from_a_canal_by_the_tube_a_branch_lies_along():
-    """A branch is of the right kind where it is a pipe exactly when the true tube nearest to most of it
-    has a constant radius; here the branches lie 0.02 off a pipe (y = 0) or a canal (y = 10)."""
+def test_model_error_gives_the_kind_of_the_tube_a_branch_lies_along():
+    """A branch's true kind is that of the true tube nearest to most of it: a pipe where its radius is
+    constant.  Here the branches lie 0.02 off a pipe (y = 0) or a canal (y = 10)."""
     from types import SimpleNamespace
 
     from canalsurf.metrics import model_error
@@ -150,4 +150,6 @@ def test_model_error_tells_a_pipe_from_a_canal_by_the_tube_a_branch_lies_along()
 
     network = SimpleNamespace(branches=[branch("pipe", 0), branch("canal", 0), branch("canal", 10), branch("pipe", 10)],
                               junctions=[])
-    assert [e["kind_right"] for e in model_error(network, [pipe, canal])] == [True, False, True, False]
+    errors = model_error(network, [pipe, canal])
+    assert [(e["kind"], e["true_kind"]) for e in errors] == [("pipe", "pipe"), ("canal", "pipe"), ("canal", "canal"),
+                                                             ("pipe", "canal")]

@@ -295,9 +295,9 @@ def model_error(network, truth_branches, truth_junctions=()) -> list:
     -------
     list of dict
         Per model branch: ``id``, ``quality``, ``spine_mean`` and ``spine_max`` (distances in true radii),
-        ``radius_mean`` (mean relative radius error); NaN when all of a branch is near junctions; and
-        ``kind_right``: whether it is a pipe exactly where the true branch most of it lies along has a
-        constant radius.
+        ``radius_mean`` (mean relative radius error); NaN when all of a branch is near junctions; its
+        ``kind``, and ``true_kind``: that of the true branch most of it lies along ("pipe" where its
+        radius is constant, else "canal").
     """
     dense = []
     for tb in truth_branches:
@@ -306,7 +306,7 @@ def model_error(network, truth_branches, truth_junctions=()) -> list:
     tree = cKDTree(np.concatenate([p for p, _ in dense]))
     true_r = np.concatenate([r for _, r in dense])
     owner = np.repeat(np.arange(len(dense)), [len(p) for p, _ in dense])
-    true_pipe = [bool(np.ptp(tb.radius.c) == 0) for tb in truth_branches]
+    true_kind = ["pipe" if np.ptp(tb.radius.c) == 0 else "canal" for tb in truth_branches]
     junctions = np.concatenate([np.asarray(truth_junctions, float).reshape(-1, 3),
                                 np.array([j.point for j in network.junctions]).reshape(-1, 3)])
     out = []
@@ -324,7 +324,7 @@ def model_error(network, truth_branches, truth_junctions=()) -> list:
                     "spine_mean": float(rel.mean()) if away.any() else nan,
                     "spine_max": float(rel.max()) if away.any() else nan,
                     "radius_mean": float(rad.mean()) if away.any() else nan,
-                    "kind_right": (b.kind == "pipe") == true_pipe[np.bincount(owner[i]).argmax()]})
+                    "kind": b.kind, "true_kind": true_kind[np.bincount(owner[i]).argmax()]})
     return out
 
 
