@@ -33,9 +33,10 @@ from .spine import (arclength_reparametrize, constant_spline, curve_length, loca
 __all__ = ["footpoints", "refine", "RefineResult", "robust_sigma", "outlier_cut", "is_stray", "extended"]
 
 #: Most Newton steps of the footpoint search, and the parameter change that counts as converged:
-#: Newton converges quadratically, so after a step this small the parameter is exact to ~1e-12.
+#: Newton converges quadratically, so after a step this small the parameter is exact to ~1e-10 (the
+#: distance, stationary there, to ~1e-15 of the spine's length).
 FOOTPOINT_NEWTON_STEPS = 30
-FOOTPOINT_TOL = 1e-7
+FOOTPOINT_TOL = 1e-5
 #: Penalty weights tried by generalised cross-validation, relative to the fixed floor SMOOTHING * n / m.
 GCV_GRID = 10.0 ** np.arange(0.0, 6.5, 0.5)
 #: Each effective degree of freedom counts this many times in the GCV score.  Where the score is nearly
@@ -57,6 +58,9 @@ END_SIGMAS = 2.0
 #: last pass and neither end moves by more than ``CONVERGED_END`` of the reach.  (At a tenth of this,
 #: fits went on for passes whose gains differed by less than a thousandth: more passes, the same tubes.)
 CONVERGED_GAIN = 1e-3
+#: A pass whose step lowers the cost by less than this share leaves a spine that moves little more: the
+#: footpoints are followed from there on, not searched along the whole spine again.
+FOLLOW_GAIN = 0.01
 CONVERGED_END = 0.01
 #: A pass that repeats one of the last this many passes (within the tolerances above) ends the fit.
 CYCLE_PASSES = 8
@@ -207,11 +211,9 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: b
     radii = radius(ts)
     # A constant radius evaluates to values that differ in the last bits; that is still a pipe.
     pipe = np.ptp(radii) <= PIPE_SPREAD * np.abs(radii).max()
-    d1, d2 = spine.derivative(1), spine.derivative(2)
-    r1, r2 = radius.derivative(1), radius.derivative(2)
 
     def search(rows):
-        return _footpoints(points[rows], spine, radius, (d1, d2, r1, r2), closed=closed, pipe=pipe, ts=ts,
+        return _footpoints(points[rows], spine, radius, closed=closed, pipe=pipe, ts=ts,
                            start=None if start is None else start[rows])
 
     if workers(len(points), FOOTPOINT_ROWS) == 1:
@@ -221,9 +223,8 @@ def footpoints(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: b
     return found[:, 0].copy(), found[:, 1].copy()
 
 
-def _footpoints(points, spine, radius, derivatives, *, closed, pipe, ts, start):
-    """:func:`footpoints`, with the spine's and radius's first two ``derivatives`` and ``ts``, the
-    samples a pipe's points start from."""
+def _footpoints(points, spine, radius, *, closed, pipe, ts, start):
+    """:func:`footpoints`, with ``ts`` the samples a pipe's points start from."""
     if start is not None:
         t = np.array(start, dtype=float)
     elif pipe:
@@ -232,7 +233,6 @@ def _footpoints(points, spine, radius, derivatives, *, closed, pipe, ts, start):
         # On a canal the start is the sample minimising |P - C| - r, not the nearest centre.
         ts = np.linspace(0.0, 1.0, FOOTPOINT_COARSE)
         t = ts[_envelope_start(points, spine(ts), radius(ts))]
-    d1, d2, r1, r2 = derivatives
     active = np.ones(len(points), bool)
     for _ in range(FOOTPOINT_NEWTON_STEPS):
         ta = t[active]
@@ -240,14 +240,15 @@ def _footpoints(points, spine, radius, derivatives, *, closed, pipe, ts, start):
         diff = pa - spine(ta)
         dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-300)
         u = diff / dist[:, None]
-        c1, c2 = d1(ta), d2(ta)
+        # Derivatives evaluated in place (``nu``): a derivative spline costs more to build than to use.
+        c1, c2 = spine(ta, 1), spine(ta, 2)
         uc1 = np.einsum("ij,ij->i", u, c1)
         c1c1 = np.einsum("ij,ij->i", c1, c1)
         grad = -uc1
         curv = (c1c1 - uc1**2) / dist - np.einsum("ij,ij->i", u, c2)
         if not pipe:
-            grad -= r1(ta)
-            curv -= r2(ta)
+            grad -= radius(ta, 1)
+            curv -= radius(ta, 2)
         # Where the second derivative is not positive Newton would climb: take a gradient step
         # scaled like |C'|^2 / d instead.
         curv = np.where(curv > 0, curv, c1c1 / dist)
@@ -380,23 +381,27 @@ def _refine(points: np.ndarray, spine: BSpline, radius: BSpline, *, closed: bool
     subset = len(points) > SUBSET_FACTOR * SUBSET_POINTS
     if subset:
         pick = np.random.default_rng(0).choice(len(points), SUBSET_POINTS, replace=False)
-        spine, radius, _ = _passes(points[np.sort(pick)], spine, radius, follow=False, **options)
-    spine, radius, inlier = _passes(points, spine, radius, follow=subset, **options)
-    t, res = footpoints(points, spine, radius, closed=closed)
+        spine, radius, _, _ = _passes(points[np.sort(pick)], spine, radius, follow=False, **options)
+    spine, radius, inlier, t = _passes(points, spine, radius, follow=subset, **options)
+    # The last pass's footpoints, carried through its trim, are each point's on this spine.
+    t, res = footpoints(points, spine, radius, closed=closed, start=t)
     return RefineResult(spine, radius, t, res, inlier, iterations)
 
 
 def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, iterations, reach,
             follow):
-    """Gauss-Newton passes until converged (see :func:`_refine`); the spine, radius and inliers.
+    """Gauss-Newton passes until converged (see :func:`_refine`); the spine, radius, inliers and
+    footpoint parameters (searched on the last pass's spine, mapped onto the returned one).
 
-    Each pass searches every footpoint along the whole spine; with ``follow`` (a start that has
-    converged on a subset, so the spine moves little) only the first does, and later passes follow
-    each footpoint from the last pass's (carried through the re-parameterisations).
+    Each pass searches every footpoint along the whole spine until one pass's step gains less than
+    ``FOLLOW_GAIN`` (the spine has settled: it moves little more), or with ``follow`` (a start that has
+    converged on a subset) after the first; later passes follow each footpoint from the last pass's
+    (carried through the re-parameterisations), as each step's cost does.
     """
     inlier = np.ones(len(points), bool)
     history = []
     t = None
+    settled = follow
     for it in range(iterations + 1):
         segs, rsegs = spine_segments, radius_segments
         if closed:
@@ -417,7 +422,7 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
                 extra=[] if rsegs is None else [(extended(radius), rsegs)])
         if rsegs is not None:
             radius = extra[0]
-        start = to_new(t) if follow and t is not None else None
+        start = to_new(t) if settled and t is not None else None
         t, res = footpoints(points, spine, radius, closed=closed, start=start)
         cut = outlier_cut(res, max(reach, 1e-12 * curve_length(spine)))
         inlier = np.abs(res - np.median(res)) <= cut
@@ -445,6 +450,7 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
                     spine, radius, t, res = new_spine, new_radius, new_t, new_res
                     gain = 1.0 - new_cost / cost
                     break
+            settled |= gain < FOLLOW_GAIN
         if not closed:
             length = curve_length(spine)
             near = np.abs(res - np.median(res)) <= END_SIGMAS / OUTLIER_SIGMAS * cut
@@ -473,7 +479,7 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
                    for g, e in history[-CYCLE_PASSES:]):
                 break
             history.append((gain, ends))
-    return spine, radius, inlier
+    return spine, radius, inlier, t
 
 
 def _linearise(points, t, inlier, spine, radius, segs, rsegs, closed):

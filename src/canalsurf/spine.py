@@ -171,7 +171,7 @@ def curve_length(spline: BSpline, a: float = 0.0, b: float = 1.0, n: int = 4001)
 
 def curvature(spline: BSpline, t: np.ndarray) -> np.ndarray:
     """Curvature ``|C' x C''| / |C'|^3`` of a space curve at parameters ``t``."""
-    d1, d2 = spline.derivative(1)(t), spline.derivative(2)(t)
+    d1, d2 = spline(t, 1), spline(t, 2)
     return np.linalg.norm(np.cross(d1, d2), axis=1) / np.maximum(np.linalg.norm(d1, axis=1) ** 3, 1e-300)
 
 
