@@ -117,7 +117,8 @@ def main(argv=None) -> int:
         radius = 100 * np.array([e["radius_mean"] for e in errors]) if errors else np.array([np.nan])
         worst_good = (max(100 * e["spine_mean"] for e in good), max(100 * e["radius_mean"] for e in good)) \
             if good else (np.nan, np.nan)
-        lines.append(f"| {family} | {cases} | {refused} | {len(errors)} | {sum(e['kind'] == 'canal' and e['true_kind'] == 'pipe' for e in errors)} | "
+        as_canal = sum(e["kind"] == "canal" and e["true_kind"] == "pipe" for e in errors)
+        lines.append(f"| {family} | {cases} | {refused} | {len(errors)} | {as_canal} | "
                      f"{' / '.join(map(str, levels))} | "
                      f"{wrong} | {np.median(spine):.2f}, {worst_good[0]:.2f} | {np.median(radius):.2f}, "
                      f"{worst_good[1]:.2f} | {np.mean(seconds):.2f} |")

@@ -984,7 +984,7 @@ def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was
             rss = {name: float(np.minimum(f.residual[mine]**2, cut**2).sum()) for name, f in fits.items()}
             # A pipe beside whose points the spine shifts as the radius would change explains a one-sided
             # scan about as well (:func:`_shifted_pipe_rss`); the canal must beat that pipe too.
-            rss_pipe = min(rss["pipe"], _shifted_pipe_rss(points[mine], fits["canal"], mine, cut, eq6))
+            rss_pipe = min(rss["pipe"], _shifted_pipe_rss(points, fits["canal"], mine, cut, eq6))
             samples = fits["canal"].radius(np.linspace(0, 1, 200))
             kind = "canal" if prefer_canal(rss_pipe, rss["canal"], int(mine.sum()), rseg + 2, samples) else "pipe"
             if kind == "canal" and _gapped(fits["canal"], float(np.mean(samples)), closed):
@@ -1030,8 +1030,8 @@ def _unscored(points: np.ndarray, pipe: RefineResult, closed: bool, eq6: float) 
 
 def _shifted_pipe_rss(points: np.ndarray, canal: RefineResult, mine: np.ndarray, cut: float,
                       eq6: float) -> float:
-    """Truncated residual sum of squares, on ``points``, of the pipe that imitates a ``canal`` fit by
-    moving its spine instead of changing its radius.
+    """Truncated residual sum of squares, on the ``points`` selected by ``mine``, of the pipe that
+    imitates a ``canal`` fit by moving its spine instead of changing its radius.
 
     Seen from one side, a tube whose radius grows by ``dr`` and one whose axis moves ``dr`` away from
     the scanner put their points (almost) in the same place: only the points seen at a slant tell them
@@ -1044,10 +1044,10 @@ def _shifted_pipe_rss(points: np.ndarray, canal: RefineResult, mine: np.ndarray,
     Parameters
     ----------
     points : ndarray, shape (N, 3)
-        The points the fits are compared on.
     canal : RefineResult
-        The canal fit, on a superset of ``points`` selected by ``mine``.
-    mine : ndarray of bool
+        The canal fit to ``points``.
+    mine : ndarray of bool, shape (N,)
+        The points the fits are compared on.
     cut : float
         Residuals count as at most ``cut`` (the comparison's outlier cut).
     eq6 : float
@@ -1058,11 +1058,11 @@ def _shifted_pipe_rss(points: np.ndarray, canal: RefineResult, mine: np.ndarray,
     float
     """
     t, e = canal.t[mine], canal.residual[mine]
-    off = points - canal.spine(t)
+    off = points[mine] - canal.spine(t)
     u = off / np.maximum(np.linalg.norm(off, axis=1), 1e-300)[:, None]
     station = (t * curve_length(canal.spine) / eq6).astype(int)
-    mean = np.stack([np.bincount(station, weights=u[:, i]) for i in range(3)], axis=1)
-    cos = np.einsum("ij,ij->i", u, mean[station] / np.maximum(np.linalg.norm(mean[station], axis=1), 1e-300)[:, None])
+    mean = np.stack([np.bincount(station, weights=u[:, i]) for i in range(3)], axis=1)[station]
+    cos = np.einsum("ij,ij->i", u, mean) / np.maximum(np.linalg.norm(mean, axis=1), 1e-300)
     r = canal.radius(t)
     design = np.column_stack([np.ones(len(t)), r * cos, cos])
     inlier = np.abs(e) <= cut
