@@ -382,9 +382,6 @@ def test_a_canal_fit_that_went_wrong_does_not_take_the_pipe_fit_with_it(monkeypa
         return RefineResult(wrong, constant_spline(r), t, residual, np.ones(len(points), bool), 1)
 
     monkeypatch.setattr(pipeline, "refine_fit", wrong_canal)
-    # The points keep their distance from the pipe fit's spine, which alone would settle it as a pipe:
-    # here they are taken as not, so that the canal fit is made.
-    monkeypatch.setattr(pipeline, "_steady_radius", lambda *args: False)
     points = _pipe_points(1.2, 0, 24, 5000, np.random.default_rng(0))
     guess = _guess_along_x()
     fit = pipeline._fit_branch(points, guess, kind="auto", refine=True)
@@ -472,7 +469,6 @@ def test_a_branch_whose_canal_or_pipe_fit_fails_is_the_other_kind(monkeypatch, f
         return refine(points, spine, radius, radius_segments=radius_segments, **kwargs)
 
     monkeypatch.setattr(pipeline, "refine_fit", fails)
-    monkeypatch.setattr(pipeline, "_steady_radius", lambda *args: False)  # both fits made
     points = _pipe_points(1.2, 0, 24, 5000, np.random.default_rng(0))
     guess = _guess_along_x()
     fit = pipeline._fit_branch(points, guess, kind="auto", refine=True)
@@ -484,13 +480,12 @@ def test_a_branch_whose_canal_or_pipe_fit_fails_is_the_other_kind(monkeypatch, f
         pipeline._fit_branch(points, guess, kind=failing, refine=True)
 
 
-@pytest.mark.parametrize("was", [None, "pipe"])
 @pytest.mark.parametrize("taper", [0.0, 0.5])
-def test_a_pipe_is_fitted_as_a_pipe_alone_unless_its_radius_changes(monkeypatch, taper, was):
-    """A branch is fitted as a pipe alone where its radius stays steady -- on a first fit, and once
-    fitted as a pipe and grown (its estimate now that fit): a pipe of radius 1.2 along x in [0, 24] (1 %
-    noise).  Where it does not -- a cone whose radius grows by ``taper`` of it over that length -- the
-    canal fit is made, and the pipe fit started from it, and the canal kept."""
+def test_a_grown_pipe_is_fitted_again_as_a_pipe_alone_unless_its_radius_changes(monkeypatch, taper):
+    """A branch fitted as a pipe and grown (its estimate now that fit) is fitted again as a pipe alone
+    where its radius stays steady: a pipe of radius 1.2 along x in [0, 24] (1 % noise).  Where it does not
+    -- a cone whose radius grows by ``taper`` of it over that length -- the canal fit is made as on a
+    first fit, and kept."""
     import canalsurf.pipeline as pipeline
 
     refine, made = pipeline.refine_fit, []
@@ -504,7 +499,7 @@ def test_a_pipe_is_fitted_as_a_pipe_alone_unless_its_radius_changes(monkeypatch,
     points[:, 1:] *= (1.2 * (1 + taper * points[:, 0] / 24))[:, None]
     r = 1.2 * (1 + taper / 2)
     guess = _guess_along_x(r)
-    fit = pipeline._fit_branch(points, guess, kind="auto", refine=True, was=was)
+    fit = pipeline._fit_branch(points, guess, kind="auto", refine=True, was="pipe")
     assert fit.kind == ("canal" if taper else "pipe")
     assert made == (["pipe", "canal", "pipe"] if taper else ["pipe"])
     assert abs(float(fit.radius(0.5)) - r) < 0.01 * 1.2

@@ -934,24 +934,20 @@ def _off_junctions(points: np.ndarray, estimates: _Estimates, i: int) -> np.ndar
 def _fit_branch(points: np.ndarray, guess: dict, *, kind: str, refine: bool, was: str | None = None) -> _BranchFit:
     """Spine and radius of one branch: the refined fit to its points, or the paper's own result.
 
-    Left to choose, the branch is first fitted as a pipe alone, and kept so where its radius stays
-    steady along it (:func:`_steady_radius`): no canal fit could be kept there.  ``was`` is the kind
-    of the fit ``guess`` holds, when the branch is fitted again once grown (:func:`_grow`): a pipe is
-    then started from that fit, and a canal fitted as on a first fit.
+    ``was`` is the kind of the fit ``guess`` holds, when the branch is fitted again once grown
+    (:func:`_grow`): a pipe is then fitted again as a pipe alone, unless its radius no longer stays
+    steady along it (:func:`_steady_radius`).
     """
     spine, radius_fn, eq6 = guess["spine"], guess["radius"], guess["eq6"]
     closed, (nseg, rseg) = guess["closed"], guess["segments"]
     if refine:
         fits = {}
-        if kind == "auto" and was != "canal":
-            # A pipe fit costs half a canal fit: the canal fit, and the pipe fit started from it, are made
-            # only where the points leave the radius changing (or the pipe fit fails).
-            try:
-                pipe = refine_fit(points, spine, radius_fn if was == "pipe" else constant_spline(eq6),
-                                  closed=closed, spine_segments=nseg, radius_segments=None, reach=eq6)
-            except ReconstructionError:
-                pipe = None
-            if pipe is not None and _steady_radius(pipe, rseg, closed):
+        if kind == "auto" and was == "pipe":
+            # Started from its own converged fit, a pipe fit takes few passes; the canal fit, and the pipe
+            # fit started from it, are made only where the grown points leave the radius changing.
+            pipe = refine_fit(points, spine, radius_fn, closed=closed, spine_segments=nseg, radius_segments=None,
+                              reach=eq6)
+            if _steady_radius(pipe, rseg, closed):
                 fits["pipe"], kind = pipe, "pipe"
         # Left to choose, a branch one of whose fits fails is the other kind, not no tube: a canal's
         # free radius can let the fit's ends close in until it shrinks to a point where a pipe's

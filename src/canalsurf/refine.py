@@ -249,14 +249,10 @@ def _footpoints(points, spine, radius, *, closed, pipe, ts, start):
         if not pipe:
             grad -= radius(ta, 1)
             curv -= radius(ta, 2)
-        # Newton on d * f'(t) = 0, not on f'(t): the same footpoint, but f = |P - C(t)| - r(t) of a point
-        # near the spine is a narrow valley (width d / |C'|), and Newton on f' from outside it overshoots,
-        # further each step, to an end of the spine.  On a pipe this is the classic projection step,
-        # (P - C).C' / (|C'|^2 - (P - C).C''), exact on a straight spine.
-        slope = dist * curv - uc1 * grad
-        # Where that is not positive Newton would climb: take a gradient step scaled like |C'|^2 / d instead.
-        step = np.where(slope > 0, dist * grad / np.where(slope > 0, slope, 1.0), grad * dist / c1c1)
-        new = ta - step
+        # Where the second derivative is not positive Newton would climb: take a gradient step
+        # scaled like |C'|^2 / d instead.
+        curv = np.where(curv > 0, curv, c1c1 / dist)
+        new = ta - grad / curv
         new = np.mod(new, 1.0) if closed else np.clip(new, 0.0, 1.0)
         moved = np.abs(new - ta) > FOOTPOINT_TOL
         t[active] = new
@@ -438,22 +434,18 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             # per cent off puts every residual near the cut, and a wild step that makes them all
             # outliers would cost little more than a good one.
             bound = cut + abs(float(np.median(res)))
+            cost = np.minimum(res**2, bound**2).sum()
             gain = 0.0
             system = _linearise(points, t, inlier, spine, radius, segs, rsegs, closed)
             stiff = _stiffness(system[0], spine, segs, closed, rsegs is not None)
             solver = _solver(system[0], system[2], stiff)
             lam = _gcv_smoothing(*system, stiff=stiff, solver=solver,
                                  floor=SMOOTHING * inlier.sum() / n_coefficients(segs, closed))
-            # The step lowers the misfit plus the spine's penalty at the weight chosen, and is judged by
-            # both.  Judged by the misfit alone, once cross-validation raised the weight every step that
-            # smoothed the spine was refused (it adds misfit), and the fit kept a lighter weight's wiggles.
-            Pen, x = system[2], system[3]
-            cost = np.minimum(res**2, bound**2).sum() + lam * x @ Pen @ x
             for damping in LM_DAMPING:
-                new_spine, new_radius, x_new = _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping,
-                                                     solver)
+                new_spine, new_radius = _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping,
+                                              solver)
                 new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed, start=t)
-                new_cost = np.minimum(new_res**2, bound**2).sum() + lam * x_new @ Pen @ x_new
+                new_cost = np.minimum(new_res**2, bound**2).sum()
                 if new_cost < cost:
                     spine, radius, t, res = new_spine, new_radius, new_t, new_res
                     gain = 1.0 - new_cost / cost
@@ -631,7 +623,7 @@ def _stiffness(JtWJ, spine, segs, closed, canal):
 
 def _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping, solver: BlockTridiagonal | None):
     """One damped Gauss-Newton step with penalty weight ``lam`` and :func:`_stiffness` ``stiff``; returns
-    the new spine and radius, and their coefficients."""
+    the new spine and radius."""
     JtWJ, g, Pen, x, _, _ = system
     m = n_coefficients(segs, closed)
     A = JtWJ + damping * np.diag(JtWJ.diagonal()) + stiff
@@ -645,5 +637,5 @@ def _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping, solve
     new_spine = BSpline(spine.t, ctrl, 3)
     rad = x_new[3 * m:]
     if rsegs is None:
-        return new_spine, constant_spline(float(rad[0])), x_new
-    return new_spine, BSpline(radius.t, np.concatenate([rad, rad[:3]]) if closed else rad, 3), x_new
+        return new_spine, constant_spline(float(rad[0]))
+    return new_spine, BSpline(radius.t, np.concatenate([rad, rad[:3]]) if closed else rad, 3)
