@@ -452,6 +452,24 @@ def test_a_link_that_holds_no_thin_points_has_a_first_estimate():
     np.testing.assert_allclose(guess["spine"](np.array([0.0, 1.0])), link.points, atol=0.01)
 
 
+def test_a_link_that_holds_one_thin_point_stays_where_its_vertices_are():
+    """A link between two junctions whose middle vertex alone holds a thin point: a spline through one
+    weighted point is any line through it, and solved it ran off hundreds of radii (a 9-bay plant's
+    link of 1.1 radii became a 280-radius estimate across the plant, whose band took in the tubes along
+    it).  Its vertices stand in: the estimate stays on them; Eq. (6) is still the thin point's."""
+    from canalsurf.pipeline import _first_guess
+    from canalsurf.skeleton import SkeletonBranch
+
+    points = np.array([[0.0, 0.0, 0.03], [0.6, 0.0, -0.03], [1.1, 0.0, 0.03]])
+    link = SkeletonBranch(points, np.array([0.0, 1.0, 0.0]), np.array([0.3, 1.0, 0.4]), (0, 1))
+    guess = _first_guess(link)
+    assert guess["eq6"] == pytest.approx(1.0)
+    t = np.linspace(0.0, 1.0, 50)
+    np.testing.assert_allclose(guess["spine"](np.array([0.0, 1.0])), points[[0, -1]], atol=0.05)
+    assert np.abs(guess["spine"](t) - points[1]).max() < 1.2
+    assert 0.2 < guess["radius"](t).min() and guess["radius"](t).max() < 1.1
+
+
 @pytest.mark.parametrize("failing", ["canal", "pipe"])
 def test_a_branch_whose_canal_or_pipe_fit_fails_is_the_other_kind(monkeypatch, failing):
     """Where one of a branch's two fits fails (a canal's ends closed in until its spine shrank to a point,

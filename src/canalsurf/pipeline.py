@@ -763,14 +763,18 @@ def _first_guess(branch: SkeletonBranch) -> dict:
     w = branch.weights if branch.weights.sum() > 0 else np.ones(len(branch.points))
     n_thin = int(w.sum())
     r_b = float(np.average(branch.radius, weights=w))  # Eq. (6) over the branch's points
+    # The splines' too where only one vertex holds any: its penalty leaves lines free, so a spline through
+    # one point is any line through it -- solved, one ran off across a plant, and its assign band took in
+    # the tubes along that line.
+    fit_w = w if np.count_nonzero(w) >= 2 else np.ones(len(branch.points))
     r_v = branch.radius if branch.closed else _steady(branch.radius)
     # A loop's periodic splines need more segments than their degree.
     least = 4 if branch.closed else 1
     nseg = max(least, _segments(length, C.SPINE_KNOTS_PER_RADIUS * r_b, n_thin))
     rseg = max(least, _segments(length, C.RADIUS_KNOTS_PER_RADIUS * r_b, n_thin))
     u = s / length
-    spine = pspline_fit(u, branch.points, n_segments=nseg, closed=branch.closed, weights=w)
-    radius = pspline_fit(u, r_v, n_segments=rseg, closed=branch.closed, weights=w)
+    spine = pspline_fit(u, branch.points, n_segments=nseg, closed=branch.closed, weights=fit_w)
+    radius = pspline_fit(u, r_v, n_segments=rseg, closed=branch.closed, weights=fit_w)
     return {"spine": spine, "radius": radius, "eq6": r_b, "segments": (nseg, rseg), "closed": branch.closed,
             "u": u, "r_v": r_v, "w": w}
 
