@@ -84,26 +84,6 @@ def test_footpoints_wrap_around_a_closed_spine(envelope):
     np.testing.assert_allclose(dist, 0.0, atol=1e-9)
 
 
-@pytest.mark.parametrize("taper", [0.0, 0.3])
-def test_footpoints_of_points_near_the_spine_are_found_from_afar(taper):
-    """Points 0.02 to 0.3 from a straight spine 24 long (inside a tube of radius 1.2, or a cone whose
-    radius grows by ``taper``), followed from a start 1.2 along the spine from their footpoints.  Newton on
-    the derivative of |P - C(t)| - r(t) overshoots there, further each step (its valley is only d / |C'|
-    wide), and left such points at an end of the spine (a thin tube's points inside a pipe's end, in
-    test_pipeline); Newton on the derivative times the distance projects them."""
-    rng = np.random.default_rng(SEED)
-    spine = BSpline(np.r_[[0.0] * 4, [1.0] * 4], np.c_[np.linspace(0.0, 24.0, 4), np.zeros((4, 2))], 3)
-    radius = BSpline(np.r_[[0.0] * 4, [1.0] * 4], 1.2 * (1 + taper * np.linspace(0.0, 1.0, 4)), 3)
-    t0 = rng.uniform(0.2, 0.8, 500)
-    angle, d = rng.uniform(0.0, 2 * np.pi, 500), rng.uniform(0.02, 0.3, 500)
-    points = spine(t0) + np.c_[np.zeros(500), d * np.cos(angle), d * np.sin(angle)]
-    t, distance = footpoints(points, spine, radius, closed=False, start=t0 + 0.05)
-    # The footpoint of |P - C| - r lies off the perpendicular foot by d r' / |C'|: 0 on the pipe.
-    exact = t0 + d * (radius(t0, 1) / 24) / 24
-    np.testing.assert_allclose(t, exact, atol=1e-3 * taper + 1e-9)
-    assert np.all(distance < 0)
-
-
 # --- refinement -------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -249,14 +249,10 @@ def _footpoints(points, spine, radius, *, closed, pipe, ts, start):
         if not pipe:
             grad -= radius(ta, 1)
             curv -= radius(ta, 2)
-        # Newton on d * f'(t) = 0, not on f'(t): the same footpoint, but f = |P - C(t)| - r(t) of a point
-        # near the spine is a narrow valley (width d / |C'|), and Newton on f' from outside it overshoots,
-        # further each step, to an end of the spine.  On a pipe this is the classic projection step,
-        # (P - C).C' / (|C'|^2 - (P - C).C''), exact on a straight spine.
-        slope = dist * curv - uc1 * grad
-        # Where that is not positive Newton would climb: take a gradient step scaled like |C'|^2 / d instead.
-        step = np.where(slope > 0, dist * grad / np.where(slope > 0, slope, 1.0), grad * dist / c1c1)
-        new = ta - step
+        # Where the second derivative is not positive Newton would climb: take a gradient step
+        # scaled like |C'|^2 / d instead.
+        curv = np.where(curv > 0, curv, c1c1 / dist)
+        new = ta - grad / curv
         new = np.mod(new, 1.0) if closed else np.clip(new, 0.0, 1.0)
         moved = np.abs(new - ta) > FOOTPOINT_TOL
         t[active] = new
