@@ -763,9 +763,9 @@ def _first_guess(branch: SkeletonBranch) -> dict:
     w = branch.weights if branch.weights.sum() > 0 else np.ones(len(branch.points))
     n_thin = int(w.sum())
     r_b = float(np.average(branch.radius, weights=w))  # Eq. (6) over the branch's points
-    # The splines' too where only one vertex holds any: its penalty leaves lines free, so a spline through
-    # one point is any line through it -- solved, one ran off across a plant, and its assign band took in
-    # the tubes along that line.
+    # Where only one vertex holds thin points, the vertices stand in for the splines too: the penalty
+    # leaves lines free, so a spline through one weighted point is any line through it (solved, one ran
+    # off across a plant, and its assign band took in the tubes along that line).
     fit_w = w if np.count_nonzero(w) >= 2 else np.ones(len(branch.points))
     r_v = branch.radius if branch.closed else _steady(branch.radius)
     # A loop's periodic splines need more segments than their degree.
