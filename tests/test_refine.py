@@ -8,8 +8,8 @@ from scipy.interpolate import BSpline
 
 from canalsurf import synth
 from canalsurf.metrics import closest_point_distance, radius_error
-from canalsurf.refine import (GCV_GAMMA, GCV_GRID, SMOOTHING, _gcv_smoothing, extended, footpoints,
-                              has_envelope, refine, robust_sigma)
+from canalsurf.refine import (GCV_GAMMA, GCV_GRID, SMOOTHING, _gcv_smoothing, extended, footpoints, refine,
+                              robust_sigma)
 from canalsurf.spine import constant_spline, curve_length
 
 SEED = 29
@@ -82,34 +82,6 @@ def test_footpoints_wrap_around_a_closed_spine(envelope):
     assert np.all((tf >= 0.0) & (tf < 1.0))
     np.testing.assert_allclose(_wrap(tf - t), 0.0, atol=1e-8)
     np.testing.assert_allclose(dist, 0.0, atol=1e-9)
-
-
-@pytest.mark.parametrize("taper", [0.0, 0.3])
-def test_footpoints_of_points_near_the_spine_are_found_from_afar(taper):
-    """Points 0.02 to 0.3 from a straight spine 24 long (inside a tube of radius 1.2, or a cone whose
-    radius grows by ``taper``), followed from a start 1.2 along the spine from their footpoints.  Newton on
-    the derivative of |P - C(t)| - r(t) overshoots there, further each step (its valley is only d / |C'|
-    wide), and left such points at an end of the spine (a thin tube's points inside a pipe's end, in
-    test_pipeline); Newton on the derivative times the distance projects them."""
-    rng = np.random.default_rng(SEED)
-    spine = BSpline(np.r_[[0.0] * 4, [1.0] * 4], np.c_[np.linspace(0.0, 24.0, 4), np.zeros((4, 2))], 3)
-    radius = BSpline(np.r_[[0.0] * 4, [1.0] * 4], 1.2 * (1 + taper * np.linspace(0.0, 1.0, 4)), 3)
-    t0 = rng.uniform(0.2, 0.8, 500)
-    angle, d = rng.uniform(0.0, 2 * np.pi, 500), rng.uniform(0.02, 0.3, 500)
-    points = spine(t0) + np.c_[np.zeros(500), d * np.cos(angle), d * np.sin(angle)]
-    t, distance = footpoints(points, spine, radius, closed=False, start=t0 + 0.05)
-    # The footpoint of |P - C| - r lies off the perpendicular foot by d r' / |C'|: 0 on the pipe.
-    exact = t0 + d * (radius(t0, 1) / 24) / 24
-    np.testing.assert_allclose(t, exact, atol=1e-3 * taper + 1e-9)
-    assert np.all(distance < 0)
-
-
-@pytest.mark.parametrize("growth, envelope", [(0.5, True), (1.9, True), (2.1, False), (-2.1, False)])
-def test_spheres_whose_radius_grows_faster_than_the_spine_moves_have_no_envelope(growth, envelope):
-    """A straight spine 2 long whose radius changes by ``growth`` along it: |r'| / |C'| = growth / 2."""
-    line = BSpline(np.r_[[0.0] * 4, [1.0] * 4], np.c_[np.linspace(0.0, 2.0, 4), np.zeros((4, 2))], 3)
-    radius = BSpline(np.r_[[0.0] * 4, [1.0] * 4], 3.0 + growth * np.linspace(0.0, 1.0, 4), 3)
-    assert has_envelope(line, radius) is envelope
 
 
 # --- refinement -------------------------------------------------------------------------------------

@@ -83,8 +83,6 @@ CANAL_TANGENT_STIFFNESS = 1.0
 BANDED_UNKNOWNS = 200
 #: Levenberg-Marquardt damping factors tried in turn until the cost falls.
 LM_DAMPING = (1e-3, 1e-1, 1.0, 10.0, 100.0)
-#: Samples of a canal step's spine on which its radius must change slower than the spine moves.
-ENVELOPE_SAMPLES = 512
 #: Samples of the spine the footpoint search starts from; on a canal a coarser set, searched
 #: exhaustively for the least ``|P - C| - r`` (Newton refines the start either way).
 FOOTPOINT_SAMPLES = 1024
@@ -174,23 +172,6 @@ def _polyline_start(points: np.ndarray, ts: np.ndarray, centres: np.ndarray) -> 
     return best_t
 
 
-def has_envelope(spine: BSpline, radius: BSpline) -> bool:
-    """Whether the spheres of ``radius`` along ``spine`` sweep a canal surface: ``|r'(t)| < |C'(t)|``.
-
-    Where the radius changes faster than the spine moves, each sphere holds its neighbours and the
-    family has no envelope.  A canal step that crosses this let one end's radius run away (on the
-    paper's Figure 16 canal, automatic defaults, seed 4, from 0.9 to 4.2 in five passes) until the
-    end sphere took in every point and the spine shrank to a point.
-
-    Parameters
-    ----------
-    spine, radius : BSpline
-        The spine C(t) and radius r(t) on the same parameter, sampled ``ENVELOPE_SAMPLES`` times.
-    """
-    t = np.linspace(spine.t[spine.k], spine.t[-spine.k - 1], ENVELOPE_SAMPLES)
-    return bool(np.all(np.abs(radius(t, 1)) < np.linalg.norm(spine(t, 1), axis=1)))
-
-
 def outlier_cut(residual: np.ndarray, radius: float) -> float:
     """Residuals farther than this from their median are stray points.
 
@@ -268,14 +249,10 @@ def _footpoints(points, spine, radius, *, closed, pipe, ts, start):
         if not pipe:
             grad -= radius(ta, 1)
             curv -= radius(ta, 2)
-        # Newton on d * f'(t) = 0, not on f'(t): the same footpoint, but f = |P - C(t)| - r(t) of a point
-        # near the spine is a narrow valley (width d / |C'|), and Newton on f' from outside it overshoots,
-        # further each step, to an end of the spine.  On a pipe this is the classic projection step,
-        # (P - C).C' / (|C'|^2 - (P - C).C''), exact on a straight spine.
-        slope = dist * curv - uc1 * grad
-        # Where that is not positive Newton would climb: take a gradient step scaled like |C'|^2 / d instead.
-        step = np.where(slope > 0, dist * grad / np.where(slope > 0, slope, 1.0), grad * dist / c1c1)
-        new = ta - step
+        # Where the second derivative is not positive Newton would climb: take a gradient step
+        # scaled like |C'|^2 / d instead.
+        curv = np.where(curv > 0, curv, c1c1 / dist)
+        new = ta - grad / curv
         new = np.mod(new, 1.0) if closed else np.clip(new, 0.0, 1.0)
         moved = np.abs(new - ta) > FOOTPOINT_TOL
         t[active] = new
@@ -467,8 +444,6 @@ def _passes(points, spine, radius, *, closed, spine_segments, radius_segments, i
             for damping in LM_DAMPING:
                 new_spine, new_radius = _step(system, stiff, spine, radius, segs, rsegs, closed, lam, damping,
                                               solver)
-                if rsegs is not None and not has_envelope(new_spine, new_radius):
-                    continue
                 new_t, new_res = footpoints(points, new_spine, new_radius, closed=closed, start=t)
                 new_cost = np.minimum(new_res**2, bound**2).sum()
                 if new_cost < cost:
