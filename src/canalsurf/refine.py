@@ -16,12 +16,13 @@ from __future__ import annotations
 
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 from scipy.interpolate import BSpline
 from scipy.linalg import eigh
 from scipy.spatial import cKDTree
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from ._banded import BlockTridiagonal
 from ._rows import by_rows, workers
@@ -338,13 +339,21 @@ def _end(s: np.ndarray) -> float:
     return float(s[first] - runs[first] / m)
 
 
+@cache
+def _blas() -> ThreadpoolController:
+    """The BLAS libraries loaded (numpy's and scipy's, both loaded by this module's imports): looking them
+    up costs about a millisecond, which ``threadpool_limits`` pays on every call -- a scene's fits make
+    thousands."""
+    return ThreadpoolController()
+
+
 def refine(points: np.ndarray, spine: BSpline, radius: BSpline, **kwargs) -> RefineResult:
     """Fit spine and radius to the points by robust Gauss-Newton (see :func:`_refine`).
 
     The dense systems have only a few hundred unknowns; BLAS threads cost far more than they save on
     them (and thrash on a busy machine), so the fit runs with one BLAS thread.
     """
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas().limit(limits=1, user_api="blas"):
         return _refine(points, spine, radius, **kwargs)
 
 
