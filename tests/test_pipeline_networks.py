@@ -440,6 +440,23 @@ def test_a_branch_takes_the_points_it_would_take_were_its_whole_box_classified()
     np.testing.assert_array_equal(taken, box[label == 0])
 
 
+
+def test_the_fittable_points_in_a_box_are_those_a_test_of_every_point_finds():
+    """Boxes long along each axis in turn, and one round the whole cloud: the fittable points inside,
+    found from the box's thinnest slab, are exactly those found by testing every point, in order."""
+    from canalsurf.pipeline import _Fittable
+
+    rng = np.random.default_rng(3)
+    points = rng.uniform(0.0, [40.0, 10.0, 5.0], (20_000, 3))
+    curved = rng.random(len(points)) < 0.7
+    fittable = _Fittable(points, curved)
+    centre = np.array([20.0, 5.0, 2.5])
+    for half in ([30.0, 1.0, 1.0], [2.0, 8.0, 0.5], [1.0, 2.0, 9.0], [50.0, 50.0, 50.0]):
+        box = np.array([centre - half, centre + half])
+        inside = np.flatnonzero(curved & np.all((points >= box[0]) & (points <= box[1]), axis=1))
+        assert len(inside) > 100
+        np.testing.assert_array_equal(fittable.in_box(points, box), inside)
+
 def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     """A tube of radius 1 from z = 0 to 8 whose thin set stops at z = 6 with its last vertices straying
     sideways and back (a 10-million-point plant's pipe so): the first estimate hooks there, its end tangent

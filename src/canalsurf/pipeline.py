@@ -879,19 +879,21 @@ class _Estimates:
 
 
 class _Fittable:
-    """The points a fit may take (``curved``), in order along the cloud's longest axis: those in a box are
-    then found by two binary searches and a test of the box's slab, not of every point of a scene."""
+    """The points a fit may take (``curved``), in order along each axis: those in a box are then found by
+    binary searches and a test of the box's thinnest slab, not of every point of a scene (a rack's pipe
+    spans the plant along its run, but not across it)."""
 
     def __init__(self, points: np.ndarray, curved: np.ndarray):
-        self.axis = int(np.argmax(np.ptp(points, axis=0))) if len(points) else 0
         index = np.flatnonzero(curved)
-        self.order = index[np.argsort(points[index, self.axis], kind="stable")]
-        self.key = points[self.order, self.axis]
+        self.order = [index[np.argsort(points[index, axis], kind="stable")] for axis in range(3)]
+        self.key = [points[order, axis] for axis, order in enumerate(self.order)]
 
     def in_box(self, points: np.ndarray, box: np.ndarray) -> np.ndarray:
         """Ascending indices of the fittable ``points`` inside ``box`` (corners, shape (2, 3))."""
-        slab = self.order[np.searchsorted(self.key, box[0, self.axis], side="left"):
-                          np.searchsorted(self.key, box[1, self.axis], side="right")]
+        spans = [(np.searchsorted(key, box[0, axis], side="left"), np.searchsorted(key, box[1, axis], side="right"))
+                 for axis, key in enumerate(self.key)]
+        axis = int(np.argmin([b - a for a, b in spans]))
+        slab = self.order[axis][slice(*spans[axis])]
         return np.sort(slab[np.all((points[slab] >= box[0]) & (points[slab] <= box[1]), axis=1)])
 
 
