@@ -172,6 +172,24 @@ def test_laz_layer_size_beyond_its_chunk_is_refused_in_a_memory_limited_process(
     assert proc.returncode == 2 and "LAZ chunk 1 announces more compressed data than it holds" in lines[0]
 
 
+
+@pytest.mark.parametrize("point_format, version", [(3, "1.2"), (6, "1.4")])
+def test_laz_whose_record_declares_huge_chunks_is_read_whole_in_a_memory_limited_process(
+        tmp_path, point_format, version):
+    """A LASzip record whose chunk size was damaged to billions of points: lazrs's parallel decoder sets a
+    whole chunk aside and aborts the process when it cannot; the file's 2,000 points are read all the same."""
+    path = tmp_path / "scan.laz"
+    raw = _las(path, version=version, point_format=point_format)
+    before = read_points(path)[0]
+    # the record's payload follows its 54-byte header, whose user id starts at byte 2; the chunk size is
+    # at byte 12 of the payload
+    payload = raw.index(b"laszip encoded") - 2 + 54
+    path.write_bytes(_packed(raw, payload + 12, "<I", 0xF0000000))
+    proc = _run_cli(path, tmp_path / "out")
+    _assert_clean_exit(proc)
+    assert proc.returncode == 0 and (tmp_path / "out" / "model.json").exists(), proc.stderr
+    np.testing.assert_array_equal(read_points(path)[0], before)
+
 def test_ascii_ply_with_binary_bytes_after_its_rows_is_refused(tmp_path):
     path = tmp_path / "scan.ply"
     write_points(tmp_path / "tmp.xyz", _tube(60), None)

@@ -748,6 +748,9 @@ _LAS_CHUNK_POINTS = 1 << 20
 #: chunks, which the cores decode side by side (the one-thread decoder left all but one core idle), in
 #: 4.5 MB of records (point format 3).
 _LAZ_DECODE_POINTS = 1 << 17
+#: Largest LASzip chunk (in bytes of records) decoded by the parallel decoder: LASzip writes chunks of
+#: 50,000 points (at most 3.4 MB of records of point format 10); a file of larger ones is decoded on one thread.
+_LAZ_PARALLEL_CHUNK_BYTES = 64 << 20
 #: The variable-length record that describes LASzip compression.
 _LASZIP_USER_ID, _LASZIP_RECORD_ID = b"laszip encoded", 22204
 #: Layers of each "layered" LASzip item (LAS 1.4 point formats 6 - 10), by item type: Point14 (x, y
@@ -764,6 +767,7 @@ class _LasLayout(NamedTuple):
     offset: int        # byte where the point data starts
     end: int           # byte where it must end: extended records, waveforms or the file's end follow
     laszip: bytes      # payload of the LASzip record (compressed files), else b""
+    record_bytes: int  # bytes of one point record
 
 
 def _las_layout(path: pathlib.Path, what: str) -> _LasLayout:
@@ -852,11 +856,12 @@ def _las_layout(path: pathlib.Path, what: str) -> _LasLayout:
             raise _more_data(path, what, count)
     elif count > _MAX_LAZ_POINTS_PER_BYTE * data:
         raise bad(f"{what} header says {count} points, more than {data} bytes of compressed data can hold")
-    return _LasLayout(compressed, count, offset, end, laszip)
+    return _LasLayout(compressed, count, offset, end, laszip, record_bytes)
 
 
-def _check_laz_chunks(path: pathlib.Path, layout: _LasLayout, lazrs, what: str) -> None:
-    """Check the LASzip chunk table against the file and the header's count before lazrs decodes."""
+def _check_laz_chunks(path: pathlib.Path, layout: _LasLayout, lazrs, what: str) -> int:
+    """Check the LASzip chunk table against the file and the header's count before lazrs decodes; the
+    points of its largest chunk, as the LASzip record declares them."""
 
     def bad(problem: str) -> InputError:
         return InputError(f"{path}: {problem} — the file is corrupted; re-export the file")
@@ -894,12 +899,14 @@ def _check_laz_chunks(path: pathlib.Path, layout: _LasLayout, lazrs, what: str) 
             raise _truncated(path, what, layout.count, held)
         if held > layout.count:
             raise _more_data(path, what, layout.count)
-    else:  # chunks of chunk_size points; the last may hold fewer
-        size = int(vlr.chunk_size())
-        if layout.count > len(chunks) * size:
-            raise _truncated(path, what, layout.count, len(chunks) * size)
-        if layout.count <= (len(chunks) - 1) * size:
-            raise _more_data(path, what, layout.count)
+        return max((int(n) for n, _ in chunks), default=0)
+    # chunks of chunk_size points; the last may hold fewer
+    size = int(vlr.chunk_size())
+    if layout.count > len(chunks) * size:
+        raise _truncated(path, what, layout.count, len(chunks) * size)
+    if layout.count <= (len(chunks) - 1) * size:
+        raise _more_data(path, what, layout.count)
+    return size
 
 
 def _check_laz_layers(path: pathlib.Path, laszip: bytes, first: int, chunk_bytes: list[int], what: str) -> None:
@@ -949,15 +956,19 @@ def _las_chunks(path: pathlib.Path, chunk: int) -> Iterator[tuple[np.ndarray, np
     if suffix == ".laz" and not laspy.LazBackend.detect_available():
         raise _missing_extra(suffix, "las")
     layout = _las_layout(path, what)
+    backend = None
     if layout.compressed:
         if not laspy.LazBackend.detect_available():
             raise _missing_extra(".laz", "las")
-        _check_laz_chunks(path, layout, _import_extra("lazrs", ".laz", "las"), what)
+        largest = _check_laz_chunks(path, layout, _import_extra("lazrs", ".laz", "las"), what)
+        # LASzip's chunks decoded over the cores, _LAZ_DECODE_POINTS at a time, handed out ``chunk`` at a
+        # time.  The parallel decoder sets aside a whole chunk at the size the LASzip record declares, and
+        # aborts the process when it cannot (a damaged record declared chunks of billions of points): the
+        # one-thread decoder writes into laspy's buffers, whose size follows the points read.
+        parallel = largest * layout.record_bytes <= _LAZ_PARALLEL_CHUNK_BYTES
+        backend = laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
     held = 0
     with _translating(path, what, fix), _library_logs("laspy"):
-        # LASzip's chunks decoded over the cores, _LAZ_DECODE_POINTS at a time, handed out ``chunk`` at
-        # a time
-        backend = laspy.LazBackend.LazrsParallel if layout.compressed else None
         with laspy.open(path, laz_backend=backend) as reader:
             header = reader.header
             names = {name.lower(): name for name in header.point_format.extra_dimension_names}
