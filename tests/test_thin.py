@@ -148,3 +148,14 @@ def test_mls_leaves_isolated_points_alone(rng):
 def test_mls_same_input_same_output(rng):
     points = _helix(rng.uniform(0.0, 1.0, 1500)) + rng.normal(scale=0.1, size=(1500, 3))
     np.testing.assert_array_equal(mls_thin(points, H=0.8), mls_thin(points.copy(), H=0.8))
+
+
+def test_a_weighting_radius_too_small_for_the_cloud_is_refused_in_one_line(rng):
+    """H = 1e-300 on a cloud 10 across numbers its voxels past 64-bit integers: refused, not a singular
+    matrix from the regressions."""
+    from canalsurf.errors import InputError
+
+    points = _circle(rng.uniform(0.0, 1.0, 500), radius=5.0)
+    with pytest.raises(InputError, match=r"^H = 1e-300 .* too small for a shrunk cloud 10 across — give an H"):
+        mls_thin(points, H=1e-300)
+    assert np.isfinite(mls_thin(points, H=1e-12)).all()  # small, but numbered and weighted in float64

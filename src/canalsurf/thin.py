@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .constants import MLS_VOXEL_PER_H
+from .errors import InputError
 
 __all__ = ["mls_thin", "voxel_average", "wyvill_weight"]
 
@@ -66,6 +67,12 @@ def mls_thin(points: np.ndarray, *, H: float) -> np.ndarray:
     ndarray, shape (N, 3)
         The thin, curve-like cloud S-tilde, row i the image of input row i.
     """
+    extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    # The support voxels are numbered by 64-bit integers: a weighting radius too small for the cloud's
+    # extent overflows them (and its weights underflow long before).
+    if not extent / (MLS_VOXEL_PER_H * H) < 2.0**62:
+        raise InputError(f"H = {H:.3g} (relative to the scan's size) is too small for a shrunk cloud "
+                         f"{extent:.3g} across — give an H of the order of the tube's radius")
     support, mass, _ = voxel_average(points, MLS_VOXEL_PER_H * H)
     dist = cKDTree(points).sparse_distance_matrix(cKDTree(support), H, output_type="coo_matrix")
     i, j = dist.row, dist.col
