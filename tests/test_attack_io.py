@@ -201,6 +201,23 @@ def test_ascii_ply_with_binary_bytes_after_its_rows_is_refused(tmp_path):
         read_points(path)
 
 
+
+def test_ascii_ply_whose_format_line_is_split_by_a_control_byte_is_read_as_text(tmp_path):
+    """plyfile splits the format line as text, where 0x1e is whitespace, and reads it as ASCII: opened as
+    binary, plyfile's text wrapper closed the file when collected, while it was still being read (seen in
+    a development-mode interpreter, which warns of the file left open)."""
+    path = tmp_path / "scan.ply"
+    write_points(tmp_path / "tmp.xyz", _tube(60), None)
+    rows = (tmp_path / "tmp.xyz").read_bytes().splitlines()
+    path.write_bytes(b"ply\nformat ascii\x1e1.0\nelement vertex 60\nproperty double x\nproperty double y\n"
+                     b"property double z\nend_header\n" + b"\n".join(rows) + b"\n")
+    code = ("import gc, sys; from canalsurf.io import read_points; "
+            "print(len(read_points(sys.argv[1])[0])); gc.collect()")
+    proc = subprocess.run([sys.executable, "-X", "dev", "-W", "error::ResourceWarning", "-c", code, str(path)],
+                          capture_output=True, text=True, timeout=CHILD_TIMEOUT)
+    assert (proc.returncode, proc.stdout.strip()) == (0, "60"), proc.stderr
+    assert "ResourceWarning" not in proc.stderr and "closed file" not in proc.stderr, proc.stderr
+
 def test_ply_coordinate_that_is_a_list_is_refused(tmp_path):
     path = tmp_path / "scan.ply"
     path.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty list uchar float x\nproperty float y\n"

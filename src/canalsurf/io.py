@@ -305,10 +305,13 @@ def _ply_vertex(path: pathlib.Path) -> Iterator[tuple[np.ndarray, bool]]:
     with open(path, "rb") as fh:
         # bounded reads: a huge file of random bytes may have no newline at all
         magic = fh.readline(16).strip()
-        fmt = fh.readline(64).split()
-    if magic != b"ply" or len(fmt) < 2 or fmt[0] != b"format":
+        # split as plyfile splits it, as text (whose whitespace includes control bytes such as 0x1e):
+        # else a format line plyfile reads as ASCII opens here as binary, and plyfile's text wrapper of
+        # the binary file closes it when collected, while it is still being read
+        fmt = fh.readline(64).decode("ascii", "replace").split()
+    if magic != b"ply" or len(fmt) < 2 or fmt[0] != "format":
         raise InputError(f"{path}: not a PLY file (it does not start with 'ply' and a format line) — {fix}")
-    text = fmt[1] == b"ascii"
+    text = fmt[1] == "ascii"
     # plyfile reads the header line by line: bound it, or a file with no newline is read whole
     with open(path, "rb") as fh:
         head = fh.read(_MAX_HEADER_BYTES)
