@@ -69,8 +69,8 @@ def mls_thin(points: np.ndarray, *, H: float) -> np.ndarray:
     """
     extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
     # The support voxels are numbered by 64-bit integers: a weighting radius too small for the cloud's
-    # extent overflows them (and its weights underflow long before).
-    if not extent / (MLS_VOXEL_PER_H * H) < 2.0**62:
+    # extent overflows them.
+    if not (H > 0 and extent < 2.0**62 * MLS_VOXEL_PER_H * H):
         raise InputError(f"H = {H:.3g} (relative to the scan's size) is too small for a shrunk cloud "
                          f"{extent:.3g} across — give an H of the order of the tube's radius")
     support, mass, _ = voxel_average(points, MLS_VOXEL_PER_H * H)
