@@ -198,6 +198,45 @@ def test_text_round_trip(tmp_path, cloud, suffix, delimiter, header, with_normal
         assert got_normals is None
 
 
+
+@pytest.mark.parametrize("header", ["", "//X Y Z R G B\n", "x,y,z,red,green,blue\n"],
+                         ids=["no-header", "cloudcompare-header", "csv-header"])
+def test_text_colours_in_the_last_three_columns_are_not_read_as_normals(tmp_path, cloud, header):
+    """X Y Z R G B, the commonest six columns: colours taken for normals sent every normal the same way
+    (a grey scan: 'normals contain zero vectors') or any way, and no tube was found."""
+    from canalsurf.io import read_points_sample
+
+    points, _ = cloud
+    colours = np.random.default_rng(1).integers(0, 256, (len(points), 3))
+    delimiter = "," if "," in header else " "
+    path = tmp_path / ("scan.csv" if delimiter == "," else "scan.xyz")
+    rows = [delimiter.join(f"{v:.17g}" for v in p) + delimiter + delimiter.join(str(c) for c in rgb)
+            for p, rgb in zip(points, colours)]
+    path.write_text(header + "\n".join(rows) + "\n")
+    got_points, got_normals = read_points(path)
+    np.testing.assert_array_equal(got_points, points)
+    assert got_normals is None
+    sample = read_points_sample(path, 100, rng=0)
+    assert sample.normals is None and len(sample.points) == 100
+
+
+@pytest.mark.parametrize("header, scale, read", [
+    ("X Y Z Nx Ny Nz\n", 1.0, True),        # named normals are read as they are,
+    ("X Y Z normal_x normal_y normal_z\n", 2.0, True),
+    ("", 1.0 + 5e-3, True),                  # unnamed ones when they are unit vectors (to 1 %),
+    ("", 2.0, False),                        # else they are read past
+])
+def test_text_normals_by_their_names_or_by_being_unit_vectors(tmp_path, cloud, header, scale, read):
+    points, normals = cloud
+    path = tmp_path / "scan.xyz"
+    np.savetxt(path, np.hstack([points, scale * normals]), fmt="%.17g", header=header.strip(), comments="")
+    got_points, got_normals = read_points(path)
+    np.testing.assert_array_equal(got_points, points)
+    if read:
+        np.testing.assert_array_equal(got_normals, scale * normals)
+    else:
+        assert got_normals is None
+
 def test_text_spaces_after_commas_comments_and_blank_lines(tmp_path):
     path = tmp_path / "scan.csv"
     path.write_text("# exported by hand\nX, Y, Z\n\n1.5, 2, 3\n# a note\n4, 5e-3, -6\n\n")

@@ -48,6 +48,7 @@ import logging
 import math
 import os
 import pathlib
+import re
 import secrets
 import stat
 import struct
@@ -225,12 +226,14 @@ def _check_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> None:
         )
 
 
-def _split_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """Split an ``(N, 3)`` or ``(N, 6)`` numeric array into points and optional normals."""
+def _split_columns(arr: np.ndarray, path: pathlib.Path, what: str, *, normals: bool = True
+                   ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Split an ``(N, 3)`` or ``(N, 6)`` numeric array into points and optional normals (the last three
+    columns, unless not ``normals``: they are then read past)."""
     _check_columns(arr, path, what)
     arr = np.array(arr, dtype=np.float64)  # a copy: never hand out a memmap or the caller's array
     if arr.shape[1] == 6:
-        return np.ascontiguousarray(arr[:, :3]), np.ascontiguousarray(arr[:, 3:])
+        return np.ascontiguousarray(arr[:, :3]), np.ascontiguousarray(arr[:, 3:]) if normals else None
     return arr, None
 
 
@@ -435,10 +438,45 @@ def _not_text(path: pathlib.Path) -> InputError:
 
 #: What to do about a text point file whose rows are not numbers.
 _TEXT_FIX = "give 3 (x y z) or 6 (x y z nx ny nz) numeric columns"
+#: Header names of a text file's normal columns, in the order x, y, z (compared in lower case, without
+#: spaces or punctuation: ``Nx``, ``normal_x``, ``//nx``).
+_TEXT_NORMAL_NAMES = tuple(tuple(f"{prefix}{axis}" for axis in "xyz") for prefix in ("n", "normal", "normals"))
+#: Without a header, the 4th to 6th columns are normals when they are unit vectors, to within this, on the
+#: first _TEXT_NORMAL_ROWS data rows: colours (X Y Z R G B, the commonest six columns) and intensities are not.
+_TEXT_UNIT_TOLERANCE = 0.01
+_TEXT_NORMAL_ROWS = 1000
+
+
+def _text_normals(path: pathlib.Path, header_lines: int, delimiter: str | None, ncols: int) -> bool:
+    """Whether a text point file's 4th to 6th columns are normals: as its header line names them, or
+    without one, by being unit vectors (see _TEXT_UNIT_TOLERANCE).  Columns that are not are read past."""
+    if ncols != 6:
+        return False
+    if header_lines:
+        line = _text_head(path)[0][1]
+        names = _fields(line, _sniff_delimiter(line))[3:6]
+        normals = tuple(re.sub(r"[^0-9a-z]", "", name.lower()) for name in names) in _TEXT_NORMAL_NAMES
+        described = f"named {' '.join(names)}"
+    else:
+        try:
+            with open(path, encoding="utf-8-sig") as fh, warnings.catch_warnings():
+                warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+                rows = np.loadtxt(itertools.islice(fh, _TEXT_NORMAL_ROWS), dtype=np.float64, delimiter=delimiter,
+                                  comments="#", ndmin=2)
+        except (ValueError, UnicodeDecodeError):
+            return True  # the whole file's parse names the bad line
+        if rows.shape[1] != 6:
+            return True
+        normals = bool(np.all(np.abs(np.linalg.norm(rows[:, 3:], axis=1) - 1.0) <= _TEXT_UNIT_TOLERANCE))
+        described = "not unit vectors"
+    if not normals:
+        log.info("%s: columns 4 to 6 are %s, not normals: read past", path, described)
+    return normals
 
 
 def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     header_lines, delimiter, ncols = _text_layout(path)
+    normals = _text_normals(path, header_lines, delimiter, ncols)
     try:
         # numpy's C parser does the bulk work; only on failure do we walk the lines in Python to
         # name the offending one (loadtxt's own row numbers skip blanks and the header).
@@ -448,7 +486,7 @@ def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
         )
     except (ValueError, UnicodeDecodeError) as exc:
         raise _explain_text_error(path, header_lines, delimiter, ncols, _TEXT_FIX, exc) from None
-    return _split_columns(arr, path, "the file")
+    return _split_columns(arr, path, "the file", normals=normals)
 
 
 def _text_head(path: pathlib.Path) -> list:
@@ -1115,8 +1153,10 @@ def read_points(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     ----------
     path : str or os.PathLike
         A file with one of the suffixes in :data:`POINT_FORMATS`.  Text files (``.xyz .txt .csv
-        .asc``) hold 3 columns (x y z) or 6 (x y z nx ny nz), optionally one header line, separated
-        by ``,``, ``;``, tabs or spaces; ``#`` starts a comment.  ``.npy`` holds an ``(N, 3)`` or
+        .asc``) hold 3 columns (x y z) or 6, optionally one header line, separated by ``,``, ``;``, tabs
+        or spaces; ``#`` starts a comment.  The 4th to 6th columns are normals where the header names
+        them so (``nx ny nz``, ``normal_x`` ..., any case), or, without a header, where they are unit
+        vectors; other columns (colours: ``X Y Z R G B``) are read past.  ``.npy`` holds an ``(N, 3)`` or
         ``(N, 6)`` array, ``.npz`` arrays ``points`` and optionally ``normals`` (or one array).
         PLY, PCD and LAS/LAZ normals are read when the file has them (``nx ny nz``;
         ``normal_x normal_y normal_z``; LAS extra dimensions of either spelling).
@@ -1317,6 +1357,7 @@ def _ascii_ply_chunks(path: pathlib.Path, count: int, names: list[str], types: l
 def _text_chunks(path: pathlib.Path, chunk: int) -> _Chunks:
     """A text point file, ``chunk`` lines at a time (numpy's parser on each)."""
     header_lines, delimiter, ncols = _text_layout(path)
+    normals = _text_normals(path, header_lines, delimiter, ncols)
     try:
         with open(path, encoding="utf-8-sig") as fh:
             for _ in itertools.islice(fh, header_lines):
@@ -1330,7 +1371,7 @@ def _text_chunks(path: pathlib.Path, chunk: int) -> _Chunks:
                     continue
                 if table.shape[1] != ncols:  # a chunk whose rows all have another number of columns
                     raise ValueError(f"{table.shape[1]} columns")
-                yield _split_columns(table, path, "the file")
+                yield _split_columns(table, path, "the file", normals=normals)
     except (ValueError, UnicodeDecodeError) as exc:
         if isinstance(exc, InputError):
             raise
@@ -1674,7 +1715,9 @@ def _text_fields(path: pathlib.Path) -> tuple[str, list[str]]:
         delimiter, "space separated")
     if data is not first:  # a header line names the columns
         return detail, _fields(first, delimiter)
-    return detail, list(_XYZ_NORMALS if len(_fields(data, delimiter)) == 6 else _XYZ)
+    if len(_fields(data, delimiter)) != 6:
+        return detail, list(_XYZ)
+    return detail, list(_XYZ_NORMALS if _text_normals(path, 0, delimiter, 6) else _XYZ + ("4", "5", "6"))
 
 
 def _numpy_fields(path: pathlib.Path) -> tuple[str, list[str]]:
