@@ -259,12 +259,36 @@ def test_text_second_header_line_is_rejected(tmp_path):
         read_points(path)
 
 
-@pytest.mark.parametrize("ncols", [2, 4, 7])
+@pytest.mark.parametrize("ncols", [1, 2])
 def test_text_wrong_column_count(tmp_path, ncols):
     path = tmp_path / "scan.txt"
     np.savetxt(path, np.ones((5, ncols)))
-    with pytest.raises(InputError, match=rf"scan\.txt: line 1 has {ncols} columns — give 3 \(x y z\) or 6"):
+    with pytest.raises(InputError, match=rf"scan\.txt: line 1 has {ncols} columns — give numeric columns x y z"):
         read_points(path)
+
+
+@pytest.mark.parametrize("header, xyz, normals", [
+    ("", [0, 1, 2], None),                                    # X Y Z I (no header)
+    ("x y z intensity", [0, 1, 2], None),
+    ("id X Y Z", [1, 2, 3], None),                            # x y z placed by the header
+    ("x y z i nx ny nz", [0, 1, 2], [4, 5, 6]),               # and the normals
+    ("//X Y Z R G B Nx Ny Nz", [0, 1, 2], [6, 7, 8]),         # CloudCompare's spelling
+])
+def test_text_columns_beyond_x_y_z_and_normals_are_read_past(tmp_path, cloud, header, xyz, normals):
+    points, unit = cloud
+    ncols = max(xyz + (normals or [])) + 1 if header else 4
+    table = np.random.default_rng(2).integers(0, 256, (len(points), ncols)).astype(float)
+    table[:, xyz] = points
+    if normals:
+        table[:, normals] = unit
+    path = tmp_path / "scan.txt"
+    np.savetxt(path, table, fmt="%.17g", header=header, comments="")
+    got_points, got_normals = read_points(path)
+    np.testing.assert_array_equal(got_points, points)
+    if normals:
+        np.testing.assert_array_equal(got_normals, unit)
+    else:
+        assert got_normals is None
 
 
 def test_text_column_count_changes(tmp_path):

@@ -226,14 +226,12 @@ def _check_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> None:
         )
 
 
-def _split_columns(arr: np.ndarray, path: pathlib.Path, what: str, *, normals: bool = True
-                   ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Split an ``(N, 3)`` or ``(N, 6)`` numeric array into points and optional normals (the last three
-    columns, unless not ``normals``: they are then read past)."""
+def _split_columns(arr: np.ndarray, path: pathlib.Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Split an ``(N, 3)`` or ``(N, 6)`` numeric array into points and optional normals."""
     _check_columns(arr, path, what)
     arr = np.array(arr, dtype=np.float64)  # a copy: never hand out a memmap or the caller's array
     if arr.shape[1] == 6:
-        return np.ascontiguousarray(arr[:, :3]), np.ascontiguousarray(arr[:, 3:]) if normals else None
+        return np.ascontiguousarray(arr[:, :3]), np.ascontiguousarray(arr[:, 3:])
     return arr, None
 
 
@@ -437,46 +435,59 @@ def _not_text(path: pathlib.Path) -> InputError:
 
 
 #: What to do about a text point file whose rows are not numbers.
-_TEXT_FIX = "give 3 (x y z) or 6 (x y z nx ny nz) numeric columns"
+_TEXT_FIX = "give numeric columns x y z, and optionally nx ny nz"
 #: Header names of a text file's normal columns, in the order x, y, z (compared in lower case, without
 #: spaces or punctuation: ``Nx``, ``normal_x``, ``//nx``).
 _TEXT_NORMAL_NAMES = tuple(tuple(f"{prefix}{axis}" for axis in "xyz") for prefix in ("n", "normal", "normals"))
-#: Without a header, the 4th to 6th columns are normals when they are unit vectors, to within this, on the
-#: first _TEXT_NORMAL_ROWS data rows: colours (X Y Z R G B, the commonest six columns) and intensities are not.
+#: Columns 4 to 6 that a header does not name as normals are normals when they are unit vectors, to within
+#: this, on the first _TEXT_NORMAL_ROWS data rows: colours (X Y Z R G B, the commonest six columns) and
+#: intensities are not.
 _TEXT_UNIT_TOLERANCE = 0.01
 _TEXT_NORMAL_ROWS = 1000
 
 
-def _text_normals(path: pathlib.Path, header_lines: int, delimiter: str | None, ncols: int) -> bool:
-    """Whether a text point file's 4th to 6th columns are normals: as its header line names them, or
-    without one, by being unit vectors (see _TEXT_UNIT_TOLERANCE).  Columns that are not are read past."""
-    if ncols != 6:
-        return False
+def _text_columns(path: pathlib.Path, header_lines: int, delimiter: str | None, ncols: int
+                  ) -> tuple[list[int], list[int] | None]:
+    """The columns of a text point file that hold x y z, and those that hold normals (``None``: none).
+
+    A header line that names x, y and z (in any case: ``X``, ``//X``) places them, else they are the first
+    three columns; one that names normals (:data:`_TEXT_NORMAL_NAMES`) places those.  Otherwise the 4th to
+    6th columns are normals when they are unit vectors (:data:`_TEXT_UNIT_TOLERANCE`).  Other columns
+    (colours, intensities) are read past.
+    """
+    names = []
     if header_lines:
         line = _text_head(path)[0][1]
-        names = _fields(line, _sniff_delimiter(line))[3:6]
-        normals = tuple(re.sub(r"[^0-9a-z]", "", name.lower()) for name in names) in _TEXT_NORMAL_NAMES
-        described = f"named {' '.join(names)}"
-    else:
-        try:
-            with open(path, encoding="utf-8-sig") as fh, warnings.catch_warnings():
-                warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
-                rows = np.loadtxt(itertools.islice(fh, _TEXT_NORMAL_ROWS), dtype=np.float64, delimiter=delimiter,
-                                  comments="#", ndmin=2)
-        except (ValueError, UnicodeDecodeError):
-            return True  # the whole file's parse names the bad line
-        if rows.shape[1] != 6:
-            return True
-        normals = bool(np.all(np.abs(np.linalg.norm(rows[:, 3:], axis=1) - 1.0) <= _TEXT_UNIT_TOLERANCE))
-        described = "not unit vectors"
-    if not normals:
-        log.info("%s: columns 4 to 6 are %s, not normals: read past", path, described)
-    return normals
+        names = [re.sub(r"[^0-9a-z]", "", name.lower()) for name in _fields(line, _sniff_delimiter(line))]
+    xyz = [names.index(a) for a in "xyz"] if all(a in names for a in "xyz") else [0, 1, 2]
+    for spelling in _TEXT_NORMAL_NAMES:
+        if all(name in names for name in spelling):
+            return xyz, [names.index(name) for name in spelling]
+    if ncols < 6 or 3 in xyz or 4 in xyz or 5 in xyz:
+        return xyz, None
+    try:
+        with open(path, encoding="utf-8-sig") as fh, warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            rows = np.loadtxt(itertools.islice(fh, header_lines, header_lines + _TEXT_NORMAL_ROWS),
+                              dtype=np.float64, delimiter=delimiter, comments="#", ndmin=2)
+    except (ValueError, UnicodeDecodeError):
+        return xyz, None  # the whole file's parse names the bad line
+    if rows.shape[1] == ncols and np.all(np.abs(np.linalg.norm(rows[:, 3:6], axis=1) - 1.0) <= _TEXT_UNIT_TOLERANCE):
+        return xyz, [3, 4, 5]
+    log.info("%s: columns 4 to 6 are not unit vectors, not normals: read past", path)
+    return xyz, None
+
+
+def _text_points(table: np.ndarray, columns: tuple[list[int], list[int] | None]) -> tuple[np.ndarray, np.ndarray | None]:
+    """The points and normals (or ``None``) of a parsed text table, from :func:`_text_columns`."""
+    xyz, normals = columns
+    return (np.ascontiguousarray(table[:, xyz]),
+            None if normals is None else np.ascontiguousarray(table[:, normals]))
 
 
 def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
     header_lines, delimiter, ncols = _text_layout(path)
-    normals = _text_normals(path, header_lines, delimiter, ncols)
+    columns = _text_columns(path, header_lines, delimiter, ncols)
     try:
         # numpy's C parser does the bulk work; only on failure do we walk the lines in Python to
         # name the offending one (loadtxt's own row numbers skip blanks and the header).
@@ -486,7 +497,7 @@ def _read_text(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray | None]:
         )
     except (ValueError, UnicodeDecodeError) as exc:
         raise _explain_text_error(path, header_lines, delimiter, ncols, _TEXT_FIX, exc) from None
-    return _split_columns(arr, path, "the file", normals=normals)
+    return _text_points(arr, columns)
 
 
 def _text_head(path: pathlib.Path) -> list:
@@ -517,7 +528,7 @@ def _text_layout(path: pathlib.Path) -> tuple[int, str | None, int]:
         number, line = head[1]
     delimiter = _sniff_delimiter(line)
     ncols = len(_fields(line, delimiter))
-    if ncols not in (3, 6):
+    if ncols < 3:
         raise InputError(f"{path}: line {number} has {ncols} columns — {fix}")
     return header_lines, delimiter, ncols
 
@@ -1153,10 +1164,11 @@ def read_points(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     ----------
     path : str or os.PathLike
         A file with one of the suffixes in :data:`POINT_FORMATS`.  Text files (``.xyz .txt .csv
-        .asc``) hold 3 columns (x y z) or 6, optionally one header line, separated by ``,``, ``;``, tabs
-        or spaces; ``#`` starts a comment.  The 4th to 6th columns are normals where the header names
-        them so (``nx ny nz``, ``normal_x`` ..., any case), or, without a header, where they are unit
-        vectors; other columns (colours: ``X Y Z R G B``) are read past.  ``.npy`` holds an ``(N, 3)`` or
+        .asc``) hold numeric columns, optionally under one header line, separated by ``,``, ``;``, tabs or
+        spaces; ``#`` starts a comment.  x y z are the columns the header names so (any case: ``X``,
+        ``//X``), else the first three; normals are the columns it names ``nx ny nz`` (or ``normal_x``
+        ...), else the 4th to 6th where they are unit vectors; other columns (colours, intensities:
+        ``X Y Z R G B``) are read past.  ``.npy`` holds an ``(N, 3)`` or
         ``(N, 6)`` array, ``.npz`` arrays ``points`` and optionally ``normals`` (or one array).
         PLY, PCD and LAS/LAZ normals are read when the file has them (``nx ny nz``;
         ``normal_x normal_y normal_z``; LAS extra dimensions of either spelling).
@@ -1357,7 +1369,7 @@ def _ascii_ply_chunks(path: pathlib.Path, count: int, names: list[str], types: l
 def _text_chunks(path: pathlib.Path, chunk: int) -> _Chunks:
     """A text point file, ``chunk`` lines at a time (numpy's parser on each)."""
     header_lines, delimiter, ncols = _text_layout(path)
-    normals = _text_normals(path, header_lines, delimiter, ncols)
+    columns = _text_columns(path, header_lines, delimiter, ncols)
     try:
         with open(path, encoding="utf-8-sig") as fh:
             for _ in itertools.islice(fh, header_lines):
@@ -1371,7 +1383,7 @@ def _text_chunks(path: pathlib.Path, chunk: int) -> _Chunks:
                     continue
                 if table.shape[1] != ncols:  # a chunk whose rows all have another number of columns
                     raise ValueError(f"{table.shape[1]} columns")
-                yield _split_columns(table, path, "the file", normals=normals)
+                yield _text_points(table, columns)
     except (ValueError, UnicodeDecodeError) as exc:
         if isinstance(exc, InputError):
             raise
@@ -1715,9 +1727,12 @@ def _text_fields(path: pathlib.Path) -> tuple[str, list[str]]:
         delimiter, "space separated")
     if data is not first:  # a header line names the columns
         return detail, _fields(first, delimiter)
-    if len(_fields(data, delimiter)) != 6:
-        return detail, list(_XYZ)
-    return detail, list(_XYZ_NORMALS if _text_normals(path, 0, delimiter, 6) else _XYZ + ("4", "5", "6"))
+    ncols = len(_fields(data, delimiter))
+    names = [str(i + 1) for i in range(ncols)]  # columns read past, by number
+    xyz, normals = _text_columns(path, 0, delimiter, ncols)
+    for index, name in zip(xyz + (normals or []), _XYZ_NORMALS):
+        names[index] = name
+    return detail, names
 
 
 def _numpy_fields(path: pathlib.Path) -> tuple[str, list[str]]:
