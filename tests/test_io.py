@@ -291,6 +291,16 @@ def test_text_columns_beyond_x_y_z_and_normals_are_read_past(tmp_path, cloud, he
         assert got_normals is None
 
 
+
+def test_text_header_naming_more_columns_than_the_rows_hold(tmp_path):
+    """A header of normals over rows of x y z only (a file cut short, found by benchmarks/fuzz.py): the rows
+    are the points, and there are no normals to read."""
+    path = tmp_path / "scan.csv"
+    path.write_text("x,y,z,nx,ny,nz\n1,2,3\n4,5,6\n")
+    points, normals = read_points(path)
+    np.testing.assert_array_equal(points, [[1, 2, 3], [4, 5, 6]])
+    assert normals is None
+
 def test_text_column_count_changes(tmp_path):
     path = tmp_path / "scan.csv"
     path.write_text("1,2,3\n4,5,6\n7,8,9,10\n")

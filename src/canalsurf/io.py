@@ -458,7 +458,8 @@ def _text_columns(path: pathlib.Path, header_lines: int, delimiter: str | None, 
     names = []
     if header_lines:
         line = _text_head(path)[0][1]
-        names = [re.sub(r"[^0-9a-z]", "", name.lower()) for name in _fields(line, _sniff_delimiter(line))]
+        # only the names of columns the data has (a header may name more than its rows hold)
+        names = [re.sub(r"[^0-9a-z]", "", name.lower()) for name in _fields(line, _sniff_delimiter(line))][:ncols]
     xyz = [names.index(a) for a in "xyz"] if all(a in names for a in "xyz") else [0, 1, 2]
     for spelling in _TEXT_NORMAL_NAMES:
         if all(name in names for name in spelling):
