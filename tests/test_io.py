@@ -49,6 +49,16 @@ def _f32(a):
     return np.asarray(a, dtype=np.float32).astype(np.float64)
 
 
+def _assert_reads_as(path, points, normals):
+    """``read_points(path)`` gives exactly ``points``, and ``normals`` (``None``: no normals)."""
+    got_points, got_normals = read_points(path)
+    np.testing.assert_array_equal(got_points, points)
+    if normals is None:
+        assert got_normals is None
+    else:
+        np.testing.assert_array_equal(got_normals, normals)
+
+
 def _assert_one_line(exc_info):
     message = str(exc_info.value)
     assert "\n" not in message and message.strip() == message
@@ -190,13 +200,7 @@ def test_text_round_trip(tmp_path, cloud, suffix, delimiter, header, with_normal
     path = tmp_path / f"scan{suffix}"
     np.savetxt(path, table, fmt="%.17g", delimiter=delimiter,
                header=delimiter.join(names) if header else "", comments="")
-    got_points, got_normals = read_points(path)
-    np.testing.assert_array_equal(got_points, points)
-    if with_normals:
-        np.testing.assert_array_equal(got_normals, normals)
-    else:
-        assert got_normals is None
-
+    _assert_reads_as(path, points, normals if with_normals else None)
 
 
 @pytest.mark.parametrize("header", ["", "//X Y Z R G B\n", "x,y,z,red,green,blue\n"],
@@ -213,9 +217,7 @@ def test_text_colours_in_the_last_three_columns_are_not_read_as_normals(tmp_path
     rows = [delimiter.join(f"{v:.17g}" for v in p) + delimiter + delimiter.join(str(c) for c in rgb)
             for p, rgb in zip(points, colours)]
     path.write_text(header + "\n".join(rows) + "\n")
-    got_points, got_normals = read_points(path)
-    np.testing.assert_array_equal(got_points, points)
-    assert got_normals is None
+    _assert_reads_as(path, points, None)
     sample = read_points_sample(path, 100, rng=0)
     assert sample.normals is None and len(sample.points) == 100
 
@@ -230,12 +232,8 @@ def test_text_normals_by_their_names_or_by_being_unit_vectors(tmp_path, cloud, h
     points, normals = cloud
     path = tmp_path / "scan.xyz"
     np.savetxt(path, np.hstack([points, scale * normals]), fmt="%.17g", header=header.strip(), comments="")
-    got_points, got_normals = read_points(path)
-    np.testing.assert_array_equal(got_points, points)
-    if read:
-        np.testing.assert_array_equal(got_normals, scale * normals)
-    else:
-        assert got_normals is None
+    _assert_reads_as(path, points, scale * normals if read else None)
+
 
 def test_text_spaces_after_commas_comments_and_blank_lines(tmp_path):
     path = tmp_path / "scan.csv"
@@ -283,13 +281,7 @@ def test_text_columns_beyond_x_y_z_and_normals_are_read_past(tmp_path, cloud, he
         table[:, normals] = unit
     path = tmp_path / "scan.txt"
     np.savetxt(path, table, fmt="%.17g", header=header, comments="")
-    got_points, got_normals = read_points(path)
-    np.testing.assert_array_equal(got_points, points)
-    if normals:
-        np.testing.assert_array_equal(got_normals, unit)
-    else:
-        assert got_normals is None
-
+    _assert_reads_as(path, points, unit if normals else None)
 
 
 def test_text_header_naming_more_columns_than_the_rows_hold(tmp_path):
@@ -331,12 +323,7 @@ def test_npy_round_trip(tmp_path, cloud, with_normals):
     points, normals = cloud
     path = tmp_path / "scan.npy"
     np.save(path, np.hstack([points, normals]) if with_normals else points)
-    got_points, got_normals = read_points(path)
-    np.testing.assert_array_equal(got_points, points)
-    if with_normals:
-        np.testing.assert_array_equal(got_normals, normals)
-    else:
-        assert got_normals is None
+    _assert_reads_as(path, points, normals if with_normals else None)
 
 
 def test_npy_float32_and_int_are_widened(tmp_path):
