@@ -464,7 +464,7 @@ def _text_columns(path: pathlib.Path, header_lines: int, delimiter: str | None, 
     for spelling in _TEXT_NORMAL_NAMES:
         if all(name in names for name in spelling):
             return xyz, [names.index(name) for name in spelling]
-    if ncols < 6 or 3 in xyz or 4 in xyz or 5 in xyz:
+    if ncols < 6 or {3, 4, 5} & set(xyz):
         return xyz, None
     try:
         with open(path, encoding="utf-8-sig") as fh, warnings.catch_warnings():
