@@ -284,7 +284,7 @@ def test_seeded_clouds_are_as_before():
 
 #: name -> (branches, junctions, connected networks) of every network.
 NETWORK_SHAPES = {"y-vessel": (3, 1, 1), "t-junction": (3, 1, 1), "tree": (7, 3, 1), "rack": (4, 0, 4),
-                  "crossing": (2, 0, 2), "floor-clutter": (1, 0, 1), "scene": (8, 1, 6), "plant": (23, 2, 19),
+                  "bundle": (2, 0, 2), "crossing": (2, 0, 2), "floor-clutter": (1, 0, 1), "scene": (8, 1, 6), "plant": (23, 2, 19),
                   "piping": (6, 1, 4)}
 #: Default share of the points on clutter.
 DEFAULT_CLUTTER = {"floor-clutter": 0.3, "scene": 0.2, "plant": 0.2}
@@ -375,6 +375,25 @@ def test_rack_and_crossing_gaps():
     assert da @ db == pytest.approx(0.0, abs=1e-12)
     normal = _unit(np.cross(da, db))
     assert abs((b.spine(0.0) - a.spine(0.0)) @ normal) == pytest.approx(2.75, abs=1e-9)
+
+
+@pytest.mark.parametrize("radii, gap", [((1.0, 1.0), 0.0), ((1.0, 0.5, 0.8), 0.2)])
+def test_bundle_pipes_touch_or_keep_their_gap(radii, gap):
+    axes = [(b.spine(0.5), float(b.radius(0.5))) for b in
+            synth.make_network("bundle", n=300, rng=0, radii=radii, gap=gap).branches]
+    np.testing.assert_allclose([r for _, r in axes], radii)
+    for (c0, r0), (c1, r1) in zip(axes, axes[1:]):
+        assert np.linalg.norm(c1 - c0) - r0 - r1 == pytest.approx(gap * min(r0, r1), abs=1e-9)
+
+
+@pytest.mark.parametrize("options, match", [
+    ({"radii": ()}, r"^a bundle takes 1 to 8 positive radii, got \(\)$"),
+    ({"radii": (1.0, -1.0)}, r"^a bundle takes 1 to 8 positive radii, got \(1\.0, -1\.0\)$"),
+    ({"gap": -0.5}, r"^a bundle's gap is a share of the smaller radius in \[0, 10\], got -0\.5$"),
+])
+def test_bundle_options_are_checked(options, match):
+    with pytest.raises(InputError, match=match):
+        synth.make_network("bundle", n=300, **options)
 
 
 def _other_tube_depth(points, branch, envelope_distance):
@@ -511,8 +530,8 @@ def test_network_same_seed_same_cloud(name):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"name": "knot"}, r"^network name must be one of 'y-vessel', 't-junction', 'tree', 'rack', 'crossing', "
-                       r"'floor-clutter', 'scene', 'plant', 'piping', got 'knot'$"),
+    ({"name": "knot"}, r"^network name must be one of 'y-vessel', 't-junction', 'tree', 'rack', 'bundle', "
+                       r"'crossing', 'floor-clutter', 'scene', 'plant', 'piping', got 'knot'$"),
     ({"n": 0}, r"^n must be a positive number of points, got 0$"),
     ({"n": 10.5}, r"^n must be a whole number of points, got 10\.5$"),
     ({"n": 99999999999999999999}, r"^n = 99999999999999999999 points would not fit in memory; at most "

@@ -673,13 +673,13 @@ def _tee(start, end, r_main: float, side, side_length: float, r_side: float) -> 
                    junction[None])
 
 
-def _rack(radii, length: float, z: float) -> _Layout:
+def _rack(radii, length: float, z: float, clearance: float = RACK_CLEARANCE) -> _Layout:
     """Parallel straight pipes along x (from 0 to ``length``) side by side in y, axes at height ``z``, the
-    gap between neighbours ``RACK_CLEARANCE`` times the smaller radius."""
+    gap between neighbours ``clearance`` times the smaller radius."""
     y, branches = radii[0], []
     for i, r in enumerate(radii):
         if i:
-            y += radii[i - 1] + RACK_CLEARANCE * min(r, radii[i - 1]) + r
+            y += radii[i - 1] + clearance * min(r, radii[i - 1]) + r
         branches.append(SyntheticBranch(_straight([0.0, y, z], [length, y, z]), constant_spline(r)))
     return _Layout(tuple(branches), np.empty((0, 3)))
 
@@ -808,6 +808,15 @@ def _tree() -> _Layout:
 
 def _rack_of_four() -> _Layout:
     return _rack((1.0, 1.5, 0.8, 2.0), 20.0, 0.0)
+
+
+def _bundle(radii=(1.0, 1.0), gap: float = 0.0) -> _Layout:
+    radii = tuple(_number(r, "a bundle's radius") for r in radii)
+    if not 1 <= len(radii) <= 8 or min(radii) <= 0:
+        raise InputError(f"a bundle takes 1 to 8 positive radii, got {radii!r}")
+    if not 0 <= _number(gap, "gap") <= 10:
+        raise InputError(f"a bundle's gap is a share of the smaller radius in [0, 10], got {gap!r}")
+    return _rack(radii, 10.0, 0.0, clearance=float(gap))
 
 
 def _crossing_pair() -> _Layout:
@@ -1064,6 +1073,9 @@ NETWORKS = {
                     "3 junctions"),
     "rack": (_rack_of_four, "4 parallel straight pipes (radii 1, 1.5, 0.8, 2; length 20) side by side, "
                             "1.5 smaller radii apart"),
+    "bundle": (_bundle, "straight pipes of length 10 side by side and touching (options radii, default "
+                        "(1, 1), and gap, the share of the smaller radius between neighbours' surfaces, "
+                        "default 0): hoses or cables strapped together"),
     "crossing": (_crossing_pair, "two straight pipes of radius 1 and length 16 crossing at right angles, "
                                  "axes 2.75 apart (0.75 r between the surfaces)"),
     "floor-clutter": (_floor_clutter, "a gently curving pipe of radius 1 one radius above a floor, beside a "
@@ -1322,7 +1334,7 @@ def make_network(name: str = "t-junction", *, n: int = 30_000, noise: float = 0.
     Parameters
     ----------
     name : str
-        One of ``NETWORKS``: ``y-vessel``, ``t-junction``, ``tree``, ``rack``, ``crossing``,
+        One of ``NETWORKS``: ``y-vessel``, ``t-junction``, ``tree``, ``rack``, ``bundle``, ``crossing``,
         ``floor-clutter``, ``scene``, ``plant``, ``piping``.
     n : int
         Number of points, clutter included (at most ``MAX_SYNTH_POINTS``).
@@ -1335,8 +1347,10 @@ def make_network(name: str = "t-junction", *, n: int = 30_000, noise: float = 0.
         ``floor-clutter``, 0.2 for ``scene`` and ``plant``, 0 for the others).  A network without clutter
         objects gets a floor one largest radius below its lowest point when ``clutter > 0``.
     **options
-        Options of the network's builder: only ``plant`` takes one, ``size`` (int, default 1, at most
-        ``MAX_PLANT_SIZE``), the number of bays of 23 tubes.
+        Options of the network's builder: ``plant`` takes ``size`` (int, default 1, at most
+        ``MAX_PLANT_SIZE``), the number of bays of 23 tubes; ``bundle`` takes ``radii`` (1 to 8 radii,
+        default ``(1.0, 1.0)``) and ``gap`` (the gap between neighbours' surfaces in smaller radii, in
+        [0, 10], default 0: they touch).
 
     Returns
     -------
