@@ -8,8 +8,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from canalsurf import synth
-from canalsurf.constants import NORMAL_NEIGHBOURS
-from canalsurf.normals import estimate_normals, orient_normals, surface_noise
+from canalsurf.constants import NORMAL_NEIGHBOURS, ORIENT_NEIGHBOURS
+from canalsurf.normals import estimate_normals, facing_inward, orient_normals, surface_noise
 
 SEED = 7
 #: Share of estimated normals that must point the same way as the true ones (NOTES: MST orientation
@@ -115,6 +115,29 @@ def test_orient_normals_of_inward_input_turns_all_outward(cylinder):
     points, true, _, _ = cylinder(1500, radius=1.0, length=6.0)
     oriented = orient_normals(points, -true, _neighbours(points))
     np.testing.assert_allclose(oriented, true, atol=0)
+
+
+@pytest.mark.parametrize("radii", [(1.0, 1.0), (1.0, 0.5), (1.0, 0.3)])
+def test_a_tube_that_touches_another_and_faces_inward_is_found(radii):
+    # The spanning tree crosses where the tubes touch: one of them faces inward, and their part's vote
+    # cannot tell.
+    net = synth.make_network("bundle", n=5000, noise=0.02, rng=SEED, radii=radii)
+    nbr = _neighbours(net.points, k=16)
+    normals = estimate_normals(net.points, neighbours=nbr)
+    wrong = np.einsum("ij,ij->i", normals, net.normals) < 0
+    assert wrong.mean() > 0.2  # what is to be found
+    found = facing_inward(net.points, normals, nbr[:, :ORIENT_NEIGHBOURS + 1])
+    assert wrong[found].mean() >= 0.75
+    assert found.sum() >= 0.6 * wrong.sum()
+
+
+@pytest.mark.parametrize("name", ["fig9-pipe", "fig16-canal", "elbow", "t-junction", "tree", "floor-clutter",
+                                  "rack"])
+def test_tubes_that_face_outward_and_creases_are_not_found_facing_inward(name):
+    cloud = (synth.make_network(name, n=5000, rng=SEED) if name in synth.NETWORKS
+             else synth.make_tube(name, n=5000, rng=SEED))
+    nbr = _neighbours(cloud.points, k=ORIENT_NEIGHBOURS + 1)
+    assert not facing_inward(cloud.points, cloud.normals, nbr).any()
 
 
 def test_same_input_same_output():

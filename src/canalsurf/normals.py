@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from ._rows import by_rows
 from .constants import NORMAL_NEIGHBOURS, ORIENT_LINK_REACH, ORIENT_NEIGHBOURS
 
-__all__ = ["estimate_normals", "orient_normals", "point_inward", "on_planes", "scatter_matrices", "surface_noise"]
+__all__ = ["estimate_normals", "orient_normals", "point_inward", "facing_inward", "on_planes", "scatter_matrices", "surface_noise"]
 
 #: Coefficients of the local quadric of :func:`surface_noise`: h = a x^2 + b xy + c y^2 + d x + e y + f.
 _QUADRIC_TERMS = 6
@@ -95,6 +95,66 @@ def point_inward(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray
     """
     rows = np.repeat(np.arange(len(points)), neighbours.shape[1])
     return bool(_divergence(points, normals, rows, neighbours.ravel()).sum() < 0)
+
+
+#: :func:`facing_inward`: a point's convexity vote, averaged over its neighbours this many times, below
+#: minus this share of the median vote's size ...
+INWARD_VOTE = 0.5
+VOTE_SMOOTHING = 3
+#: ... in a region of at least this share of the points, whose normals turn around an axis further than a
+#: concave crease's do (their mean is shorter than this).
+INWARD_MIN_SHARE = 0.01
+INWARD_MEAN_NORMAL = 0.5
+
+
+def facing_inward(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """Which points lie on a tube their normals face into.
+
+    The spanning tree of :func:`orient_normals` carries one orientation across the line where two tubes
+    touch (their normals are parallel there, which the tree prefers), so a tube touching another can
+    face inward whole while the vote of their part stays positive.  Such a tube is a wide region of
+    points that curve the wrong way (their convexity vote, averaged over their neighbourhoods, is
+    negative) whose normals turn all around its axis.  A concave crease (where a box stands on a floor)
+    curves the wrong way too, but its normals turn through a right angle, and at a corner point three
+    ways: their mean stays long.  A tube between two others it touches faces inward in two halves, each
+    too narrow to tell from a crease.
+
+    Parameters
+    ----------
+    points, normals : ndarray, shape (N, 3)
+    neighbours : ndarray of int, shape (N, k)
+        Each point's nearest points, itself first.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    n = len(points)
+    offset = points[neighbours[:, 1:]] - points[:, None]
+    turn = np.einsum("nkj,nkj->n", normals[neighbours[:, 1:]] - normals[:, None], offset)
+    length = np.linalg.norm(offset, axis=2)
+    # Divided by the spread of the neighbourhood and times its reach: the vote of a point on a tube of
+    # radius r is about reach / 2r, whatever the density.
+    spread = (length ** 2).sum(axis=1)
+    vote = np.divide(turn * length.max(axis=1), spread, out=np.zeros(n), where=spread > 0)
+    for _ in range(VOTE_SMOOTHING):
+        vote = vote[neighbours].mean(axis=1)
+    inward = np.flatnonzero(vote < -INWARD_VOTE * np.median(np.abs(vote)))
+    found = np.zeros(n, bool)
+    if len(inward) < INWARD_MIN_SHARE * n:
+        return found
+    at = np.full(n, -1)
+    at[inward] = np.arange(len(inward))
+    rows, cols = np.nonzero(at[neighbours[inward]] >= 0)
+    links = coo_matrix((np.ones(len(rows)), (rows, at[neighbours[inward]][rows, cols])),
+                       shape=(len(inward), len(inward)))
+    n_regions, region = connected_components(links, directed=False)
+    size = np.bincount(region, minlength=n_regions)
+    mean_normal = np.stack([np.bincount(region, weights=normals[inward, a], minlength=n_regions)
+                            for a in range(3)], axis=1) / size[:, None]
+    tube = (size >= INWARD_MIN_SHARE * n) & (np.linalg.norm(mean_normal, axis=1) < INWARD_MEAN_NORMAL)
+    found[inward[tube[region]]] = True
+    return found
 
 
 def _propagated_signs(parent: np.ndarray, flip: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ reported in the input's units.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -27,7 +28,7 @@ from .errors import InputError, ReconstructionError
 from .metrics import ROUNDNESS_POINTS, angular_coverage, roundness
 from .model import CanalModel
 from .network import Junction, Network, classify_points
-from .normals import estimate_normals, on_planes, point_inward, scatter_matrices, surface_noise
+from .normals import estimate_normals, facing_inward, on_planes, point_inward, scatter_matrices, surface_noise
 from .pointcloud import quantisation_noise
 from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
@@ -480,24 +481,34 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
     runs = [first]
     left = np.ones(len(scan.all_pts), bool)
     run, coarser = first, first.r0
+    # A further pass that would not run (too few points left, or none to draw) runs after the first if
+    # that left unexplained a tube its normals faced into.
+    inward = functools.cache(lambda: _left_facing_inward(first))
     for _ in range(MAX_SCALE_PASSES - 1):
+        facing = False
         if scan.draw is None:
-            break  # a scan no larger than one subset has no denser one to draw
+            if not (run is first and inward()):
+                break  # a scan no larger than one subset has no denser one to draw
+            facing = True
         least = max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left))
         with timer("normals"):
-            sample = scan.draw[:EXPLAINED_SAMPLE]
+            sample = (np.arange(len(left)) if scan.draw is None else scan.draw)[:EXPLAINED_SAMPLE]
             sample = sample[left[sample]]
             unexplained = int((~_explained(scan.all_pts[sample], run, on_surface=True)
                                & ~_near(scan.all_pts[sample], run.past_ends, on_surface=True)).sum())
             estimate = unexplained * len(left) / min(EXPLAINED_SAMPLE, len(left))
             if estimate < least / 2:
-                break
+                if not (run is first and inward()):
+                    break
+                facing = True
             left[left] = ~_explained(scan.all_pts[left], run, on_surface=True)
         if left.sum() < least:
-            break  # too little left
+            if not (run is first and inward()):
+                break  # too little left
+            facing = True
         pool = np.flatnonzero(left)
         local = np.cumsum(left) - 1  # index in the pool of each point of it
-        draw = local[scan.draw[left[scan.draw]]]
+        draw = None if scan.draw is None else local[scan.draw[left[scan.draw]]]
         # DENSIFY times as densely as the last pass drew from its points: what it left is what it saw
         # too sparsely, tubes about half as thin (or clutter).
         n = DENSIFY * len(run.scan.pts) / len(run.scan.all_pts) * len(pool)
@@ -506,13 +517,14 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
                       int(min(max(n, C.MAX_SHRINK_POINTS), MAX_STAGE_POINTS)))
         try:
             # Its r0 over the points that curve at least as tightly as the last scale: a scene's floor
-            # and boxes, most of what is left, would otherwise set it.
+            # and boxes, most of what is left, would otherwise set it.  A tube the first pass's normals
+            # faced into may be wider than the first scale.
             run = _paper_stages(sub, k, given, kind=kind, stop="auto", neighbours=neighbours, quantum=quantum,
-                                timer=timer, fallback=False, widest=coarser)
+                                timer=timer, fallback=False, widest=1.0 if facing else coarser)
         except ReconstructionError as exc:
             log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
             break
-        if run.r0 > MAX_SCALE_RATIO * first.r0:
+        if run.r0 > MAX_SCALE_RATIO * first.r0 and not facing:
             log.info("the %d points left unexplained hold no further tubes (r0 = %.4g): no further pass", len(pool),
                      run.r0 * scan.scale)
             break
@@ -537,6 +549,26 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
         if last:
             break
     return runs
+
+
+#: A further pass runs on fewer points than MIN_PASS_POINTS, or on a scan no larger than one subset, when
+#: this share of the points the first pass's normals faced into lie in or on no tube it found.
+INWARD_LEFT_SHARE = 0.5
+
+
+def _left_facing_inward(run: _Pass) -> bool:
+    """Whether the pass left unexplained a tube of its subset that its normals faced into
+    (:func:`canalsurf.normals.facing_inward`): shrunk outward, its points gathered nowhere.  A further
+    pass estimates their normals apart from the tube they touch."""
+    pts = run.scan.pts
+    nbr = cKDTree(pts).query(pts, k=min(C.ORIENT_NEIGHBOURS + 1, len(pts)), workers=-1)[1]
+    facing = facing_inward(pts, run.nrm, nbr)
+    if not facing.any():
+        return False
+    share = float((~_explained(pts[facing], run)).mean())
+    log.info("%d points of the subset lie on a tube their normals face into; %.0f%% of them on no tube found",
+             facing.sum(), 100 * share)
+    return share >= INWARD_LEFT_SHARE
 
 
 def _trimmed(run: _Pass) -> _Pass:
