@@ -481,31 +481,25 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
     runs = [first]
     left = np.ones(len(scan.all_pts), bool)
     run, coarser = first, first.r0
-    # A further pass that would not run (too few points left, or none to draw) runs after the first if
-    # that left unexplained a tube its normals faced into.
+    # A further pass that would not run (too few points left, or a scan no larger than one subset, with
+    # no denser one to draw) runs after the first all the same if that left a tube its normals faced into.
     inward = functools.cache(lambda: _left_facing_inward(first))
     for _ in range(MAX_SCALE_PASSES - 1):
-        facing = False
-        if scan.draw is None:
-            if not (run is first and inward()):
-                break  # a scan no larger than one subset has no denser one to draw
-            facing = True
         least = max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left))
         with timer("normals"):
-            sample = (np.arange(len(left)) if scan.draw is None else scan.draw)[:EXPLAINED_SAMPLE]
-            sample = sample[left[sample]]
-            unexplained = int((~_explained(scan.all_pts[sample], run, on_surface=True)
-                               & ~_near(scan.all_pts[sample], run.past_ends, on_surface=True)).sum())
-            estimate = unexplained * len(left) / min(EXPLAINED_SAMPLE, len(left))
-            if estimate < least / 2:
-                if not (run is first and inward()):
-                    break
-                facing = True
+            few = scan.draw is None
+            if not few:
+                sample = scan.draw[:EXPLAINED_SAMPLE]
+                sample = sample[left[sample]]
+                unexplained = int((~_explained(scan.all_pts[sample], run, on_surface=True)
+                                   & ~_near(scan.all_pts[sample], run.past_ends, on_surface=True)).sum())
+                few = unexplained * len(left) / min(EXPLAINED_SAMPLE, len(left)) < least / 2
+            if few and not (run is first and inward()):
+                break
             left[left] = ~_explained(scan.all_pts[left], run, on_surface=True)
-        if left.sum() < least:
-            if not (run is first and inward()):
-                break  # too little left
-            facing = True
+        facing = few or left.sum() < least
+        if facing and not (run is first and inward()):
+            break  # too little left
         pool = np.flatnonzero(left)
         local = np.cumsum(left) - 1  # index in the pool of each point of it
         draw = None if scan.draw is None else local[scan.draw[left[scan.draw]]]
