@@ -2152,7 +2152,7 @@ def make_pole_scan(*, radius: float = 0.08, length: float = 2.0, vertical: bool 
 #: Families of :func:`random_case`.
 CASE_FAMILIES = ("tube", "segment", "trunk", "pole", "network", "plant")
 #: Networks :func:`random_case` draws from for ``network`` (the plant is a family of its own).
-_CASE_NETWORKS = ("y-vessel", "t-junction", "tree", "rack", "crossing", "floor-clutter", "scene")
+_CASE_NETWORKS = ("y-vessel", "t-junction", "tree", "rack", "bundle", "crossing", "floor-clutter", "scene")
 
 
 def random_case(family: str, seed: int):
