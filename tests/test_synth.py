@@ -284,8 +284,8 @@ def test_seeded_clouds_are_as_before():
 
 #: name -> (branches, junctions, connected networks) of every network.
 NETWORK_SHAPES = {"y-vessel": (3, 1, 1), "t-junction": (3, 1, 1), "tree": (7, 3, 1), "rack": (4, 0, 4),
-                  "bundle": (2, 0, 2), "crossing": (2, 0, 2), "floor-clutter": (1, 0, 1), "scene": (8, 1, 6), "plant": (23, 2, 19),
-                  "piping": (6, 1, 4)}
+                  "bundle": (2, 0, 2), "crossing": (2, 0, 2), "floor-clutter": (1, 0, 1), "scene": (8, 1, 6),
+                  "plant": (23, 2, 19), "piping": (6, 1, 4)}
 #: Default share of the points on clutter.
 DEFAULT_CLUTTER = {"floor-clutter": 0.3, "scene": 0.2, "plant": 0.2}
 #: Points of each test cloud (small enough for the brute-force checks).

@@ -17,7 +17,8 @@ from scipy.spatial import cKDTree
 from ._rows import by_rows
 from .constants import NORMAL_NEIGHBOURS, ORIENT_LINK_REACH, ORIENT_NEIGHBOURS
 
-__all__ = ["estimate_normals", "orient_normals", "point_inward", "facing_inward", "on_planes", "scatter_matrices", "surface_noise"]
+__all__ = ["estimate_normals", "orient_normals", "point_inward", "facing_inward", "on_planes", "scatter_matrices",
+           "surface_noise"]
 
 #: Coefficients of the local quadric of :func:`surface_noise`: h = a x^2 + b xy + c y^2 + d x + e y + f.
 _QUADRIC_TERMS = 6
@@ -145,9 +146,9 @@ def facing_inward(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarra
         return found
     at = np.full(n, -1)
     at[inward] = np.arange(len(inward))
-    rows, cols = np.nonzero(at[neighbours[inward]] >= 0)
-    links = coo_matrix((np.ones(len(rows)), (rows, at[neighbours[inward]][rows, cols])),
-                       shape=(len(inward), len(inward)))
+    linked = at[neighbours[inward]]  # the neighbours' places among the inward points, -1 if not one
+    rows, cols = np.nonzero(linked >= 0)
+    links = coo_matrix((np.ones(len(rows)), (rows, linked[rows, cols])), shape=(len(inward), len(inward)))
     n_regions, region = connected_components(links, directed=False)
     size = np.bincount(region, minlength=n_regions)
     mean_normal = np.stack([np.bincount(region, weights=normals[inward, a], minlength=n_regions)

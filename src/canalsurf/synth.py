@@ -811,7 +811,7 @@ def _rack_of_four() -> _Layout:
 
 
 def _bundle(radii=(1.0, 1.0), gap: float = 0.0) -> _Layout:
-    radii = tuple(_number(r, "a bundle's radius") for r in radii)
+    radii = tuple(_number(r, "a bundle's radius") for r in np.atleast_1d(np.asarray(radii, dtype=object)))
     if not 1 <= len(radii) <= 8 or min(radii) <= 0:
         raise InputError(f"a bundle takes 1 to 8 positive radii, got {radii!r}")
     if not 0 <= _number(gap, "gap") <= 10:
