@@ -117,10 +117,10 @@ def test_orient_normals_of_inward_input_turns_all_outward(cylinder):
     np.testing.assert_allclose(oriented, true, atol=0)
 
 
-@pytest.mark.parametrize("radii", [(1.0, 1.0), (1.0, 0.5), (1.0, 0.3)])
+@pytest.mark.parametrize("radii", [(1.0, 1.0), (1.0, 0.5), (1.0, 0.3), (1.0, 1.0, 1.0), (1.0, 0.6, 0.8)])
 def test_a_tube_that_touches_another_and_faces_inward_is_found(radii):
-    # The spanning tree crosses where the tubes touch: one of them faces inward, and their part's vote
-    # cannot tell.
+    # The spanning tree crosses where the tubes touch: one of them faces inward (the middle one of three
+    # in two halves), and their part's vote cannot tell.
     net = synth.make_network("bundle", n=5000, noise=0.02, rng=SEED, radii=radii)
     nbr = _neighbours(net.points, k=16)
     normals = estimate_normals(net.points, neighbours=nbr)
