@@ -373,11 +373,6 @@ EXPLAINED_RADII = 1.25
 #: Further passes at finer scales, at most (a plant's pipes span radii of 1 - 30 cm: each pass takes the
 #: median radius of what is left, about halving it).
 MAX_SCALE_PASSES = 4
-#: A further pass is kept only if the median radius of what it works on is at most this many times the
-#: first pass's (the scan's median scale): else the points left are clutter.  It may be wider than the
-#: last pass's: a sparse first subset can miss tubes of the scan's own scale, which a pass after a finer
-#: one then finds, and thin tubes beside wider ones read a little wider than they are.
-MAX_SCALE_RATIO = 1.25
 #: A further pass runs only on at least this many unexplained points, and this share of the scan.
 MIN_PASS_POINTS = C.MAX_SHRINK_POINTS
 MIN_PASS_SHARE = 0.02
@@ -475,16 +470,19 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
     (R, delta, H) follow the first radius estimate r0, the median over the scene, and a tube a few
     times thinner is too sparse there for its normals to curve (it reads as flat) or shrinks with a
     step that overshoots its spine.  What the first pass left unexplained is drawn again, DENSIFY times
-    as densely, and run again at its own scale, until too little is left or nothing finer is found.
-    The work grows with the tubes found, not with the points.
+    as densely, and run again at its own scale, until too little is left or a pass explains too little
+    of what it saw.  A pass may find tubes wider than the first's median scale: the first pass stops
+    shrinking once its many thinner tubes have met, before a wider tube's sides do.  The work grows
+    with the tubes found, not with the points.
     """
     runs = [first]
     left = np.ones(len(scan.all_pts), bool)
     run, coarser = first, first.r0
-    # A further pass that would not run (too few points left, or a scan no larger than one subset, with
-    # no denser one to draw) runs after the first all the same if that left a tube its normals faced into.
-    inward = functools.cache(lambda: _left_facing_inward(first))
     for _ in range(MAX_SCALE_PASSES - 1):
+        # A further pass that would not run (too few points left, or a scan no larger than one subset,
+        # with no denser one to draw) runs all the same if the last left a tube its normals faced into:
+        # of several touching in a row, each pass may face into another.
+        inward = functools.cache(functools.partial(_left_facing_inward, run))
         least = max(MIN_PASS_POINTS, MIN_PASS_SHARE * len(left))
         with timer("normals"):
             few = scan.draw is None
@@ -494,11 +492,11 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
                 unexplained = int((~_explained(scan.all_pts[sample], run, on_surface=True)
                                    & ~_near(scan.all_pts[sample], run.past_ends, on_surface=True)).sum())
                 few = unexplained * len(left) / min(EXPLAINED_SAMPLE, len(left)) < least / 2
-            if few and not (run is first and inward()):
+            if few and not inward():
                 break
             left[left] = ~_explained(scan.all_pts[left], run, on_surface=True)
         facing = few or left.sum() < least
-        if facing and not (run is first and inward()):
+        if facing and not inward():
             break  # too little left
         pool = np.flatnonzero(left)
         local = np.cumsum(left) - 1  # index in the pool of each point of it
@@ -511,16 +509,12 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
                       int(min(max(n, C.MAX_SHRINK_POINTS), MAX_STAGE_POINTS)))
         try:
             # Its r0 over the points that curve at least as tightly as the last scale: a scene's floor
-            # and boxes, most of what is left, would otherwise set it.  A tube the first pass's normals
-            # faced into may be wider than the first scale.
+            # and boxes, most of what is left, would otherwise set it.  A tube the last pass's normals
+            # faced into may be wider than the last scale.
             run = _paper_stages(sub, k, given, kind=kind, stop="auto", neighbours=neighbours, quantum=quantum,
                                 timer=timer, fallback=False, widest=1.0 if facing else coarser)
         except ReconstructionError as exc:
             log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
-            break
-        if run.r0 > MAX_SCALE_RATIO * first.r0 and not facing:
-            log.info("the %d points left unexplained hold no further tubes (r0 = %.4g): no further pass", len(pool),
-                     run.r0 * scan.scale)
             break
         log.info("a further pass on %d points left unexplained: r0 = %.4g, %d thin points",
                  len(pool), run.r0 * scan.scale, len(run.thin))
@@ -546,8 +540,9 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
 
 
 #: A further pass runs on fewer points than MIN_PASS_POINTS, or on a scan no larger than one subset, when
-#: this share of the points the first pass's normals faced into lie in or on no tube it found.
-INWARD_LEFT_SHARE = 0.5
+#: this share of the points the last pass's normals faced into lie on the surface of no tube it found
+#: (inside a wider one they touch lie many of a thin tube's).
+INWARD_LEFT_SHARE = 0.25
 
 
 def _left_facing_inward(run: _Pass) -> bool:
@@ -559,8 +554,8 @@ def _left_facing_inward(run: _Pass) -> bool:
     facing = facing_inward(pts, run.nrm, nbr)
     if not facing.any():
         return False
-    share = float((~_explained(pts[facing], run)).mean())
-    log.info("%d points of the subset lie on a tube their normals face into; %.0f%% of them on no tube found",
+    share = float((~_explained(pts[facing], run, on_surface=True)).mean())
+    log.info("%d points of the subset lie on a tube their normals face into; %.0f%% of them on no tube's surface",
              facing.sum(), 100 * share)
     return share >= INWARD_LEFT_SHARE
 
