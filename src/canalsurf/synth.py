@@ -2164,7 +2164,8 @@ def random_case(family: str, seed: int):
     * ``trunk``: :func:`make_trunk`, radius 0.1 - 0.3, flare 20 - 70 %;
     * ``pole``: :func:`make_pole_scan`, radius 4 - 15 cm, 1,000 - 3,000 points on it, one scanner,
       1 cm quantisation;
-    * ``network``: a named network (not the plant), 15,000 - 40,000 points, noise 0.5 - 3 %;
+    * ``network``: a named network (not the plant), 15,000 - 40,000 points, noise 0.5 - 3 %; a bundle of
+      2 - 4 pipes of radii 0.5 - 1.5, touching or up to a radius apart;
     * ``plant``: one bay of the plant (23 tubes of radii 0.5 - 2, racks, elbows, tees, a floor),
       40,000 - 160,000 points, noise 0.5 - 3 %.
 
@@ -2191,5 +2192,9 @@ def random_case(family: str, seed: int):
                               distance=rng.uniform(3.0, 10.0), rng=rng)
     if family == "plant":
         return make_network("plant", n=int(rng.integers(40000, 160001)), noise=rng.uniform(0.005, 0.03), rng=rng)
-    return make_network(str(rng.choice(_CASE_NETWORKS)), n=int(rng.integers(15000, 40001)),
-                        noise=rng.uniform(0.005, 0.03), rng=rng)
+    name, n, noise = str(rng.choice(_CASE_NETWORKS)), int(rng.integers(15000, 40001)), rng.uniform(0.005, 0.03)
+    if name == "bundle":
+        options = {"radii": tuple(rng.uniform(0.5, 1.5, int(rng.integers(2, 5)))),
+                   "gap": float(rng.choice([0.0, rng.uniform(0.0, 1.0)]))}
+        return make_network(name, n=n, noise=noise, rng=rng, **options)
+    return make_network(name, n=n, noise=noise, rng=rng)
