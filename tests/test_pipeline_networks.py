@@ -589,3 +589,12 @@ def test_a_pipe_twice_as_wide_as_the_pipes_around_it_is_found(radii, gap):
     assert len(network.branches) == len(radii) and c["one_to_one"]
     for b in c["branches"]:
         assert b["spine_mean"] <= SPINE_MEAN and b["radius_mean"] <= RADIUS_MEAN and b["covered"] >= COVERED, b
+
+
+@pytest.mark.parametrize("seed", [200, 202])
+def test_touching_pipes_leave_no_false_tube_past_a_skeleton_end(seed):
+    """A pipe's points past the end of its skeleton, left to a later pass and faced into there, are no
+    tube to look for: a further pass made a false one of them (seed 202)."""
+    truth = make_network("bundle", n=30_000, noise=NOISE, rng=seed)
+    network = canalsurf.reconstruct(truth.points)
+    assert len(network.branches) == 2 and compare_network(network, truth)["one_to_one"]
