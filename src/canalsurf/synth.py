@@ -2193,8 +2193,6 @@ def random_case(family: str, seed: int):
     if family == "plant":
         return make_network("plant", n=int(rng.integers(40000, 160001)), noise=rng.uniform(0.005, 0.03), rng=rng)
     name, n, noise = str(rng.choice(_CASE_NETWORKS)), int(rng.integers(15000, 40001)), rng.uniform(0.005, 0.03)
-    if name == "bundle":
-        options = {"radii": tuple(rng.uniform(0.5, 1.5, int(rng.integers(2, 5)))),
-                   "gap": float(rng.choice([0.0, rng.uniform(0.0, 1.0)]))}
-        return make_network(name, n=n, noise=noise, rng=rng, **options)
-    return make_network(name, n=n, noise=noise, rng=rng)
+    options = {} if name != "bundle" else {"radii": tuple(rng.uniform(0.5, 1.5, int(rng.integers(2, 5)))),
+                                           "gap": float(rng.choice([0.0, rng.uniform(0.0, 1.0)]))}
+    return make_network(name, n=n, noise=noise, rng=rng, **options)
