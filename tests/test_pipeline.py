@@ -174,7 +174,7 @@ def test_what_a_pass_hands_on_is_what_lies_on_no_surface_it_found():
     from canalsurf.pipeline import _explained, _Pass
 
     x = np.linspace(0, 20, 401)
-    run = _Pass(scan=None, nrm=None, r0=1.6, p={"H": 0.5}, curved=None, kappa=None, sr=None, kept=None,
+    run = _Pass(scan=None, nrm=None, r0=1.6, p={"H": 0.5}, curved=None, kappa=None, neighbours=None, sr=None, kept=None,
                 thin=np.c_[x, 0 * x, 0 * x], r_i=np.full(len(x), 1.6))
     angle = np.linspace(0, 2 * np.pi, 40, endpoint=False)
     ring = np.c_[np.zeros_like(angle), np.cos(angle), np.sin(angle)]
@@ -192,7 +192,7 @@ def test_a_tubes_surface_past_the_open_end_of_its_thin_set_lies_on_the_skeleton_
     from canalsurf.pipeline import PAST_END_RADII, _explained, _near, _Pass
 
     x = np.linspace(0, 20, 401)
-    run = _Pass(scan=None, nrm=None, r0=1.6, p={"H": 0.5}, curved=None, kappa=None, sr=None, kept=None,
+    run = _Pass(scan=None, nrm=None, r0=1.6, p={"H": 0.5}, curved=None, kappa=None, neighbours=None, sr=None, kept=None,
                 thin=np.c_[x, 0 * x, 0 * x], r_i=np.full(len(x), 1.6))
     angle = np.linspace(0, 2 * np.pi, 40, endpoint=False)
     ring = np.c_[np.zeros_like(angle), np.cos(angle), np.sin(angle)]

@@ -265,8 +265,9 @@ class _Pass:
     """The paper's stages (normals, shrinking, thinning) run on one subset of the scan at one scale.
 
     ``scan`` holds the points of the pass (``scan.pts`` its subset); ``curved`` indexes the subset's
-    points that may shrink, ``kappa`` their larger principal curvature; ``thin`` and ``r_i`` are the thin set and the distance of each of its points' input point
-    (of ``scan.pts[curved[kept]]``).
+    points that may shrink, ``kappa`` their larger principal curvature; ``neighbours`` holds each subset
+    point's nearest points, itself first (``ORIENT_NEIGHBOURS + 1``); ``thin`` and ``r_i`` are the thin
+    set and the distance of each of its points' input point (of ``scan.pts[curved[kept]]``).
     """
 
     scan: _Scan
@@ -275,6 +276,7 @@ class _Pass:
     p: dict
     curved: np.ndarray
     kappa: np.ndarray
+    neighbours: np.ndarray
     sr: ShrinkResult
     kept: np.ndarray
     thin: np.ndarray
@@ -340,7 +342,7 @@ def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbou
     """
     algo = "pipe" if kind == "pipe" else "canal"
     with timer("normals"):
-        scan, nrm, r0, area_per_point, curved, kappa = _normals(scan, k, flat_out=stop == "auto",
+        scan, nrm, r0, area_per_point, curved, kappa, nbr = _normals(scan, k, flat_out=stop == "auto",
                                                                 quantum=quantum, widest=widest)
     p = _parameters(r0, area_per_point, scan.scale, algo=algo, stop=stop, **given)
     with timer("shrink"):
@@ -364,7 +366,7 @@ def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbou
     with timer("thin"):
         thin = _thin(sr.points[kept], p["H"])
         r_i = np.linalg.norm(scan.pts[curved[kept]] - thin, axis=1)
-    return _Pass(scan, nrm, r0, p, curved, kappa, sr, kept, thin, r_i)
+    return _Pass(scan, nrm, r0, p, curved, kappa, nbr, sr, kept, thin, r_i)
 
 
 #: After the paper's stages, a point of the scan is explained when it lies within this many of the local
@@ -551,8 +553,7 @@ def _left_facing_inward(run: _Pass, runs: tuple) -> bool:
     normals faced into (:func:`canalsurf.normals.facing_inward`): shrunk outward, its points gathered
     nowhere.  A further pass estimates their normals apart from the tube they touch."""
     pts = run.scan.pts
-    nbr = cKDTree(pts).query(pts, k=min(C.ORIENT_NEIGHBOURS + 1, len(pts)), workers=-1)[1]
-    facing = facing_inward(pts, run.nrm, nbr)
+    facing = facing_inward(pts, run.nrm, run.neighbours)
     if not facing.any():
         return False
     on = pts[facing]
@@ -598,7 +599,8 @@ def _prepare(points, normals, k) -> _Scan:
 
 
 def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0, widest: float = 1.0):
-    """Normals, the first radius estimate r0, the area per point and the points that may shrink.
+    """Normals, the first radius estimate r0, the area per point, the points that may shrink, their
+    curvature and each point's nearest points (ORIENT_NEIGHBOURS + 1, itself first).
 
     r0 is taken over the points that curve at least as tightly as a tube of radius ``widest`` (in the
     normalised units: the cloud's RMS size is 1; a finer pass gives the last pass's r0).
@@ -661,7 +663,7 @@ def _normals(scan: _Scan, k, *, flat_out: bool, quantum: float = 0.0, widest: fl
         flat[curved] = False
         flat[on_planes(scan.pts, nrm, np.flatnonzero(flat), C.PLANE_TOLERANCE_NOISES * noise)] = True
         curved = curved[~flat[curved]]
-    return scan, nrm, r0, area_per_point, curved, kappa
+    return scan, nrm, r0, area_per_point, curved, kappa, np.ascontiguousarray(nbr[:, :C.ORIENT_NEIGHBOURS + 1])
 
 
 def _scan_noise(points: np.ndarray, nbr: np.ndarray) -> float:
