@@ -497,8 +497,8 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
             if few and not inward():
                 break
             left[left] = ~_explained(scan.all_pts[left], run, on_surface=True)
-        facing = few or left.sum() < least
-        if facing and not inward():
+        forced = few or left.sum() < least
+        if forced and not inward():
             break  # too little left
         pool = np.flatnonzero(left)
         local = np.cumsum(left) - 1  # index in the pool of each point of it
@@ -514,7 +514,7 @@ def _finer_scales(scan: _Scan, first: _Pass, k, given: dict, *, kind: str, neigh
             # and boxes, most of what is left, would otherwise set it.  A tube the last pass's normals
             # faced into may be wider than the last scale.
             run = _paper_stages(sub, k, given, kind=kind, stop="auto", neighbours=neighbours, quantum=quantum,
-                                timer=timer, fallback=False, widest=1.0 if facing else coarser)
+                                timer=timer, fallback=False, widest=1.0 if forced else coarser)
         except ReconstructionError as exc:
             log.info("no further tubes among the %d points left unexplained: %s", len(pool), exc)
             break
