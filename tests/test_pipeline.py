@@ -817,15 +817,13 @@ def test_a_tube_grows_into_a_piece_of_it_that_was_dropped(piece, radius, ends, g
 def test_a_tube_fitted_again_starts_from_its_fit():
     """The skeleton branch a grown tube is fitted again from runs along its fit, end to end, with the
     branch's ends (junctions) and its count of thin points."""
-    from types import SimpleNamespace
-
     from canalsurf.pipeline import _as_branch
     from canalsurf.skeleton import SkeletonBranch
 
     fit = _piece((0.0, 0, 0), (20.0, 0, 0), radius=0.5)
     old = SkeletonBranch(np.column_stack([np.linspace(5.0, 20.0, 31), np.full(31, 0.1), np.zeros(31)]),
                          np.full(31, 3.0), np.full(31, 0.45), (None, 2))
-    new = _as_branch(SimpleNamespace(**vars(fit)), old)
+    new = _as_branch(fit.spine, fit.radius, old)
     assert np.allclose(new.points[[0, -1]], fit.spine(np.array([0.0, 1.0])), atol=1e-9)
     assert np.allclose(new.points[:, 1:], 0.0, atol=1e-9)
     assert new.ends == (None, 2) and not new.closed
@@ -987,3 +985,39 @@ def test_a_fit_that_swung_round_is_turned_back_to_its_estimate():
     # a stub's direction is noise: not turned
     assert not _runs_back(reversed_spline(fit), guess, 2.0)
     np.testing.assert_allclose(reversed_spline(fit)(u), fit(1.0 - u), atol=1e-12)
+
+
+@pytest.mark.parametrize(("end_at", "veered"), [
+    ((6.0, 1.3, 0.0), True),    # swerves from beside the wide tube into it: fitted again, straight on
+    ((10.0, 0.0, 0.0), False),  # meets it head-on (a tee whose junction was not found): kept
+])
+def test_an_open_end_that_veers_into_another_tube_is_fitted_again_straight_on(end_at, veered):
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _veered_ends
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    wide = SimpleNamespace(**vars(_piece((0.0, 0, 0), (20.0, 0, 0), radius=2.0)), eq6=2.0, segments=(4, 1))
+    # A thin pipe along the wide one, 2.5 from its axis (touching it), whose last stretch turns to end_at.
+    if veered:
+        x = np.linspace(0.0, 6.0, 61)
+        path = np.column_stack([x, 2.5 - 1.2 * np.clip(x - 4.0, 0.0, None) ** 2 / 4.0, np.zeros_like(x)])
+    else:
+        y = np.linspace(12.0, 0.0, 61)
+        path = np.column_stack([np.full_like(y, 10.0), y, np.zeros_like(y)])
+    u = np.linspace(0.0, 1.0, len(path))
+    thin = SimpleNamespace(closed=False, spine=pspline_fit(u, path, n_segments=12), radius=constant_spline(0.5),
+                           eq6=0.5, segments=(12, 1))
+    assert np.allclose(thin.spine(1.0), end_at, atol=0.05)
+    skel = SimpleNamespace(branches=[SimpleNamespace(ends=(None, None))] * 2, junctions=np.empty((0, 3)))
+    out = _veered_ends([wide, thin], skel, set())
+    assert set(out) == ({1} if veered else set())
+    if veered:
+        spine, radius = out[1]
+        # On along its stretch before the swerve, as far as it ran and a radius on, outside the wide tube
+        # (its axis y = 0, radius 2); the swerve had begun a little before the cut, 2 radii inside it.
+        ends = spine(np.array([0.0, 1.0]))
+        assert ends[0, 1] == pytest.approx(2.5, abs=0.01) and ends[1, 0] >= 6.0
+        assert 2.25 <= ends[1, 1] <= 2.5
+        assert np.allclose(radius(np.linspace(0, 1, 5)), 0.5)
+        assert _veered_ends([wide, thin], skel, {1}) == {}  # once only

@@ -143,3 +143,30 @@ def test_fold_finds_a_spine_that_bends_more_tightly_than_its_radius():
     assert why.startswith("the spine bends more tightly than the tube's radius along ") and "passes through itself" in why
     assert int(why.split("along ")[1].split("%")[0]) / 100 > FOLD_BEND_SHARE
     assert fold(wiggle, constant_spline(0.3), False) == ""
+
+
+def test_inside_others_finds_a_spine_inside_another_tube_but_not_beside_it():
+    from canalsurf.quality import inside_others, longest_inside
+    from canalsurf.spine import constant_spline
+
+    line = lambda y: _polyline_spline([[x, y, 0] for x in range(11)])  # noqa: E731
+    # Touching pipes (axes a sum of radii apart) pass through each other nowhere.
+    touching = inside_others([(line(0.0), constant_spline(1.0)), (line(1.5), constant_spline(0.5))])
+    assert all((other < 0).all() for *_, other in touching)
+    # A thin pipe whose second half swerves to 0.6 from the axis of a wide one runs inside it there,
+    # about 8 of its radii; the wide one's axis stays outside the thin tube.
+    x = np.linspace(0, 10, 41)
+    swerve = _polyline_spline(np.column_stack([x, 1.5 - 0.9 * np.clip(x - 5, 0, 1), np.zeros_like(x)]))
+    (_, s, other), (_, _, wide) = inside_others([(swerve, constant_spline(0.5)), (line(0.0), constant_spline(1.0))])
+    length, which = longest_inside(s, other)
+    assert which == 1 and 4.0 <= length / 0.5 <= 11.0 and other[-1] == 1
+    assert (wide < 0).all()
+    # Within a junction's reach the tubes meeting there are one.
+    met = [[(np.array([10.0, 0.6, 0.0]), 6.0)], []]
+    _, s, other = inside_others([(swerve, constant_spline(0.5)), (line(0.0), constant_spline(1.0))], met)[0]
+    assert longest_inside(s, other) == (0.0, -1)
+
+
+def test_a_branch_inside_another_tube_is_poor():
+    quality, reasons = branch_quality(**CLEAN, inside=(2.0, 3))
+    assert quality == "poor" and "inside the tube of branch 3 along 2.0 radii" in reasons[0]

@@ -30,7 +30,7 @@ from .model import CanalModel
 from .network import Junction, Network, classify_points
 from .normals import estimate_normals, facing_inward, on_planes, point_inward, scatter_matrices, surface_noise
 from .pointcloud import quantisation_noise
-from .quality import POOR_GAP_RADII, branch_quality, fold, scan_quality, support_gap
+from .quality import POOR_GAP_RADII, branch_quality, fold, inside_others, longest_inside, scan_quality, support_gap
 from .radius import curvature_radius, plausible_radius, prefer_canal, principal_curvature
 from .refine import RefineResult, extended, footpoints, is_stray, outlier_cut, refine as refine_fit, robust_sigma
 from .shrink import ShrinkResult, shrink, shrink_by_concentration, shrink_by_sections
@@ -1391,18 +1391,36 @@ def _straight_on(fit: _BranchFit, hooks: dict, guess: dict) -> tuple[dict, np.nd
     points there are not all that tube's: the branch's own tube went on straight to its end, and where
     the hook lies more than STRAIGHT_ON_RADII from the end, its points past the hook, cut with it, would
     leave the model radii short (refitted from the first estimate, which stopped short of them as well:
-    a rack pipe of the 10⁸-point plant, ``bench.py --stream``).  The estimate is the fit's
-    spine cut inside the hooks and continued straight as far as it ran past the cut and ASSIGN_END_RADII
-    on (like a first estimate), the radius held; the points kept lie within the outlier cut of its
-    surface, towards a hooked end.  With no hook that far from its end, ``guess`` and none.
+    a rack pipe of the 10⁸-point plant, ``bench.py --stream``).  The estimate is the fit
+    :func:`_straightened` at the hooks; the points kept lie within the outlier cut of its surface,
+    towards a hooked end.  With no hook that far from its end, ``guess`` and none.
     """
     length = curve_length(fit.spine)
     hooks = {end: t for end, t in hooks.items() if (t if end == 0 else 1.0 - t) * length > STRAIGHT_ON_RADII * fit.eq6}
-    # Cut HOOK_RADII / 2 radii inside each hook, where the spine has stopped turning.
+    straight = _straightened(fit, hooks)
+    if straight is None:
+        return guess, np.zeros(len(fit.t), bool)
+    spine, radius = straight
+    t, res = footpoints(fit.points, spine, radius, closed=False)
+    # Towards a hooked end only: past a gap at the other end, points on the fit's surface are another
+    # tube in line (:func:`_stray_tail`).
+    hooked_side = np.zeros(len(fit.t), bool)
+    for end in hooks:
+        hooked_side |= fit.t < 0.5 if end == 0 else fit.t >= 0.5
+    on = ((np.abs(res - np.median(fit.residual)) <= outlier_cut(fit.residual, fit.eq6))
+          & (t > 0.0) & (t < 1.0) & hooked_side)
+    return {**guess, "spine": spine, "radius": radius, "segments": fit.segments}, on
+
+
+def _straightened(fit: _BranchFit, hooks: dict) -> tuple[BSpline, BSpline] | None:
+    """The fit's spine and radius cut HOOK_RADII / 2 radii inside its ``hooks`` (``{end: t}``), where the
+    spine has stopped turning, and continued straight as far as it ran past the cut and ASSIGN_END_RADII
+    on (like a first estimate), the radius held; ``None`` with no hooks, or hooked along most of it."""
+    length = curve_length(fit.spine)
     inside = HOOK_RADII / 2 * fit.eq6 / length
     a, b = (hooks[0] + inside if 0 in hooks else 0.0), (hooks[1] - inside if 1 in hooks else 1.0)
-    if not hooks or b - a < 0.5:  # none far from its end, or hooked along most of it
-        return guess, np.zeros(len(fit.t), bool)
+    if not hooks or b - a < 0.5:
+        return None
     nseg, rseg = fit.segments
     cut, (radius,), _ = arclength_reparametrize(fit.spine, n_segments=nseg, closed=False, a=a, b=b,
                                                 extra=[(lambda t: fit.radius(np.clip(t, a, b)), rseg)])
@@ -1413,15 +1431,7 @@ def _straight_on(fit: _BranchFit, hooks: dict, guess: dict) -> tuple[dict, np.nd
         extended(cut, HOOK_RADII * per_radius, turn=0.0), n_segments=nseg, closed=False,
         a=-(a * scale + past) if 0 in hooks else 0.0, b=1 + (1 - b) * scale + past if 1 in hooks else 1.0,
         extra=[(lambda t, f=radius: f(np.clip(t, 0.0, 1.0)), rseg)])
-    t, res = footpoints(fit.points, spine, radius, closed=False)
-    # Towards a hooked end only: past a gap at the other end, points on the fit's surface are another
-    # tube in line (:func:`_stray_tail`).
-    hooked_side = np.zeros(len(fit.t), bool)
-    for end in hooks:
-        hooked_side |= fit.t < 0.5 if end == 0 else fit.t >= 0.5
-    on = ((np.abs(res - np.median(fit.residual)) <= outlier_cut(fit.residual, fit.eq6))
-          & (t > 0.0) & (t < 1.0) & hooked_side)
-    return {**guess, "spine": spine, "radius": radius, "segments": fit.segments}, on
+    return spine, radius
 
 
 #: A stretch at an open end whose spine holds, per radius of its length, fewer of the fit's inliers than
@@ -1690,12 +1700,46 @@ def _grown_into(fits: list, skel: Skeleton, dropped: list) -> list:
     return out
 
 
-def _as_branch(fit: _BranchFit, branch: SkeletonBranch) -> SkeletonBranch:
-    """A skeleton branch along ``fit``'s spine in place of ``branch`` (its ends, its thin points spread
-    evenly along it): the estimate the branch is fitted again from."""
-    t, pts = sample_arclength(fit.spine, len(branch.points))
+def _as_branch(spine: BSpline, radius: BSpline, branch: SkeletonBranch) -> SkeletonBranch:
+    """A skeleton branch along ``spine`` in place of ``branch`` (its ends, its thin points spread evenly
+    along it): the estimate the branch is fitted again from."""
+    t, pts = sample_arclength(spine, len(branch.points))
     weights = np.full(len(t), branch.weights.sum() / len(t))
-    return SkeletonBranch(pts, weights, fit.radius(t), branch.ends, branch.closed)
+    return SkeletonBranch(pts, weights, radius(t), branch.ends, branch.closed)
+
+
+def _veered_ends(fits: list, skel: Skeleton, done: set) -> dict:
+    """``{i: (spine, radius)}``: the fitted branches (but those ``done``) with an open end that runs into
+    another tube, away from junctions, where the branch going on straight would not, each cut inside that
+    end and continued straight (:func:`_straightened`) -- the estimate to fit it again from.
+
+    A thin pipe's end beside a wider one it touches can follow the wider one's points into its tube: the
+    two fit a sector of them about as well.  Going on straight, it stays on its own; a stub whose end
+    meets a tube head-on (a tee whose junction was not found) would not, and keeps its fit.
+    """
+    live = [i for i, f in enumerate(fits) if f]
+    if len(live) < 2:
+        return {}
+    largest = _largest_at_junctions(fits, skel)
+    met = [[(skel.junctions[j], JUNCTION_EXCLUSION_RADII * largest[j]) for j in skel.branches[i].ends if j is not None]
+           for i in live]
+    inside = inside_others([(fits[i].spine, fits[i].radius) for i in live], met)
+    out = {}
+    for n, i in enumerate(live):
+        fit, (t, _, other) = fits[i], inside[n]
+        if i in done or fit.closed or (other >= 0).all():
+            continue
+        hooks, into = {}, set()
+        for end, run in ((0, other), (1, other[::-1])):
+            held = int(np.argmin(run >= 0))  # samples inside another tube, from this end
+            if held and skel.branches[i].ends[end] is None:
+                hooks[end] = t[held - 1] if end == 0 else t[len(t) - held]
+                into |= set(run[:held].tolist())
+        straight = _straightened(fit, hooks) if hooks else None
+        if straight is not None and not (inside_others([straight] + [(fits[live[o]].spine, fits[live[o]].radius)
+                                                                     for o in into])[0][2] >= 0).any():
+            out[i] = straight
+    return out
 
 
 #: Two fitted branches are pieces of one tube -- the thin set broke along it, or two passes each found
@@ -1802,6 +1846,20 @@ def _spans(fit: _BranchFit, first: np.ndarray, last: np.ndarray) -> bool:
     return bool(cKDTree(spine).query(np.array([first, last]))[0].max() <= END_TRIM_RADII * fit.eq6)
 
 
+def _leaves(fit: _BranchFit, piece: _BranchFit) -> bool:
+    """Whether the spine of a fit of joined pieces leaves the tube of one of them beside it (passes
+    farther from that piece's spine than its radius, abreast of it, not past its ends): a pipe's joined
+    fit took to the points of a neighbour as wide as it that it touches, across the pieces' gap or
+    where they overlap."""
+    n = max(INSIDE_SAMPLES, int(PIECE_SAMPLES_PER_RADIUS * curve_length(piece.spine) / piece.eq6))
+    t, pts = sample_arclength(piece.spine, n)
+    mine = sample_arclength(fit.spine, max(INSIDE_SAMPLES, int(PIECE_SAMPLES_PER_RADIUS * curve_length(fit.spine)
+                                                                / fit.eq6)))[1]
+    distance, nearest = cKDTree(pts).query(mine)
+    abreast = (nearest > 0) & (nearest < n - 1)
+    return bool((distance[abreast] > piece.radius(t[nearest[abreast]])).any())
+
+
 def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, made: dict,
                    refused: tuple = ()) -> tuple[Skeleton, list, list]:
     """The skeleton and fits with each two pieces of one tube (:func:`_pieces_of_one_tube`, but for the
@@ -1827,6 +1885,8 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, made: dict,
         if isinstance(fit, str) or not _spans(fit, fits[a].spine(1.0 - ea), fits[b].spine(1.0 - eb)):
             return False
         if _quality(fit)["rms"] > JOINED_RMS_RATIO * max(_quality(fits[a])["rms"], _quality(fits[b])["rms"]):
+            return False
+        if _leaves(fit, fits[a]) or _leaves(fit, fits[b]):
             return False
         p, d = ends[a, ea]
         gap = float((fits[b].spine(float(eb)) - p) @ d)
@@ -1858,6 +1918,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     fittable = _Fittable(points, curved)
     loose = _Fittable(points, loose) if loose is not None and loose.any() else None
     cut = set()  # branches cut to their part outside other tubes
+    straightened = set()  # branches fitted again from an end continued straight (_veered_ends)
     made = {}  # the branches' first estimates (see _Estimates)
     for round_ in range(MAX_FIT_ROUNDS):
         estimates = _Estimates(skel, made)
@@ -1903,9 +1964,16 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             # The points of a piece dropped are the tube's it was a piece of: that tube is fitted again,
             # from its fit, to grow into them.
             for k in _grown_into(fits, skel, [were[i] for i in inside if fits[i] is False]):
-                skel = replace(skel, branches=[_as_branch(fits[k], b) if n == k else b
+                skel = replace(skel, branches=[_as_branch(fits[k].spine, fits[k].radius, b) if n == k else b
                                                for n, b in enumerate(skel.branches)])
                 fits[k] = None
+            for k, (spine, radius) in _veered_ends(fits, skel, straightened).items():
+                log.info("branch %d runs into another tube at an open end: fitted again from its straight "
+                         "continuation", k)
+                skel = replace(skel, branches=[_as_branch(spine, radius, b) if n == k else b
+                                               for n, b in enumerate(skel.branches)])
+                fits[k] = None
+                straightened.add(k)
         drop = [i for i, f in enumerate(fits) if f is False]
         if not drop and not opened:
             if all(fits):
@@ -1921,6 +1989,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
         origin = [None if u is None else origin[u] for u in unchanged]
         fits = [None if o is None else fits[o] for o in origin]
         cut = {n for n, o in enumerate(origin) if o in cut}
+        straightened = {n for n, o in enumerate(origin) if o in straightened}
     else:
         if any(f is None or f is False for f in fits):
             raise ReconstructionError("the branches of the network could not be fitted — the input is not a tube")
@@ -2091,12 +2160,9 @@ def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray
     continued into a junction that lies behind its end can fold.  A scene keeps its other tubes; a
     scan whose every branch folds is refused.
     """
-    reach = {j: JUNCTION_EXCLUSION_RADII * max(f.eq6 for f in fits if j in f.ends)
-             for f in fits for j in f.ends if j is not None}
     kept, left_out = [], []
-    for fit in fits:
-        folded = fold(fit.spine, fit.radius, fit.closed,
-                      junctions=[(junction_points[j], reach[j]) for j in fit.ends if j is not None])
+    for fit, junctions in zip(fits, _junctions_met(fits, junction_points)):
+        folded = fold(fit.spine, fit.radius, fit.closed, junctions=junctions)
         if folded:
             left_out.append(folded)
         else:
@@ -2116,12 +2182,21 @@ def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray
     return kept, junction_points, left_out
 
 
+def _junctions_met(fits: list, junction_points: np.ndarray) -> list:
+    """For each fit, the junctions it meets as ``(point, reach)``: the tubes meeting there are one within
+    JUNCTION_EXCLUSION_RADII of the largest radius there."""
+    reach = {j: JUNCTION_EXCLUSION_RADII * max(f.eq6 for f in fits if j in f.ends)
+             for f in fits for j in f.ends if j is not None}
+    return [[(junction_points[j], reach[j]) for j in f.ends if j is not None] for f in fits]
+
+
 def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: np.ndarray,
                         left_out: list = ()):
     """Per-branch diagnostics and the scan's: which points lie on a tube, how well, how seen, and the
     quality each can be trusted with (:mod:`canalsurf.quality`); ``left_out`` says why tubes found were
     left out of the model."""
     branches = []
+    inside = inside_others([(f.spine, f.radius) for f in fits], _junctions_met(fits, junction_points))
     for i, fit in enumerate(fits):
         t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
         stray = is_stray(residual, fit.eq6)
@@ -2133,7 +2208,8 @@ def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: 
         level, reasons = branch_quality(
             rms=rms, radius=mean_r, noise=noise, coverage=coverage,
             gap=support_gap(t[near], curve_length(fit.spine), fit.closed),
-            out_of_round=roundness(fit.points[near], fit.spine, t[near], residual[near]), stretches=stretches)
+            out_of_round=roundness(fit.points[near], fit.spine, t[near], residual[near]), stretches=stretches,
+            inside=longest_inside(*inside[i][1:]))
         branches.append(CanalModel(fit.kind, fit.spine, fit.radius, fit.closed, diagnostics={
             "quality": level, "quality_reasons": reasons,
             "n_points": int(len(fit.points)), "eq6_radius": fit.eq6, "inlier_rms_residual": rms,

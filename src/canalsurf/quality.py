@@ -17,7 +17,8 @@ import numpy as np
 
 from .constants import ONE_SIDED_DEGREES
 
-__all__ = ["LEVELS", "CLAIMS", "branch_quality", "scan_quality", "support_gap", "fold"]
+__all__ = ["LEVELS", "CLAIMS", "branch_quality", "scan_quality", "support_gap", "fold", "inside_others",
+           "longest_inside"]
 
 #: Qualities from best to worst.
 LEVELS = ("good", "check", "poor")
@@ -135,6 +136,69 @@ def fold(spine, radius, closed: bool, *, junctions=()) -> str:
     return ""
 
 
+#: Spine samples per radius of :func:`inside_others` (at least INSIDE_MIN_SAMPLES a tube).
+INSIDE_SAMPLES_PER_RADIUS, INSIDE_MIN_SAMPLES = 4, 50
+
+
+def inside_others(tubes: list, junctions: list = ()) -> list:
+    """Where each tube's spine runs inside another tube: two tubes of a scan never pass through each
+    other but where they meet.
+
+    Parameters
+    ----------
+    tubes : list of (BSpline, BSpline)
+        Each tube's spine and radius function.
+    junctions : list of list of (ndarray, float)
+        For each tube, the junctions it meets as a point and a reach: within the reach the tubes meeting
+        there are united and its spine is not checked.
+
+    Returns
+    -------
+    list of (t, s, other)
+        For each tube, samples of its spine by arc length: their parameters ``t``, their arc lengths ``s``,
+        and ``other``, the index of a tube whose inside holds the sample (-1 where none does).
+    """
+    from scipy.spatial import cKDTree
+
+    from .spine import curve_length, polyline_arclength, sample_arclength
+
+    samples = []
+    for spine, radius in tubes:
+        mean_r = float(np.mean(radius(np.linspace(0.0, 1.0, 64))))
+        n = max(INSIDE_MIN_SAMPLES, int(INSIDE_SAMPLES_PER_RADIUS * curve_length(spine) / mean_r))
+        t, pts = sample_arclength(spine, n)
+        samples.append((t, pts, radius(t)))
+    pts = np.concatenate([p for _, p, _ in samples])
+    r = np.concatenate([r for *_, r in samples])
+    owner = np.repeat(np.arange(len(tubes)), [len(t) for t, *_ in samples])
+    other = np.full(len(pts), -1)
+    # Each sample's ball of its tube's radius holds the other tubes' samples inside that tube: balls of
+    # their own radius, not of the widest, stay small in a scene of thin tubes beside wide ones.
+    for b, near in enumerate(cKDTree(pts).query_ball_point(pts, r)):
+        near = np.asarray(near, int)
+        other[near[owner[near] != owner[b]]] = owner[b]
+    out = []
+    for k, (t, p, _) in enumerate(samples):
+        mine = other[owner == k]
+        for point, reach in junctions[k] if len(junctions) else ():
+            mine[np.linalg.norm(p - point, axis=1) <= reach] = -1
+        out.append((t, polyline_arclength(p), mine))
+    return out
+
+
+def longest_inside(s: np.ndarray, other: np.ndarray) -> tuple[float, int]:
+    """The longest run of samples of one tube's spine inside another tube (:func:`inside_others`): its
+    length along the spine (a sample's share of it each) and the other tube's index; ``(0.0, -1)`` where
+    no sample is inside another."""
+    edges = np.diff(np.concatenate([[0], other >= 0, [0]]).astype(int))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    if not len(starts):
+        return 0.0, -1
+    k = int(np.argmax(stops - starts))
+    run = other[starts[k]:stops[k]]
+    return float(len(run) * s[-1] / max(len(s) - 1, 1)), int(np.bincount(run).argmax())
+
+
 def _turns_back(s: np.ndarray, tangent: np.ndarray, reach: np.ndarray) -> bool:
     """Whether the unit ``tangent`` at arc lengths ``s`` turns by more than a right angle over ``reach``."""
     ahead = np.searchsorted(s, s + reach)
@@ -157,7 +221,8 @@ def support_gap(t: np.ndarray, length: float, closed: bool) -> float:
 
 
 def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, gap: float,
-                   out_of_round: float, stretches: np.ndarray = np.empty(0)) -> tuple[str, list]:
+                   out_of_round: float, stretches: np.ndarray = np.empty(0),
+                   inside: tuple = (0.0, -1)) -> tuple[str, list]:
     """Quality of one branch and its reasons.
 
     Parameters
@@ -176,6 +241,9 @@ def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, 
         :func:`support_gap` of its points.
     out_of_round : float
         :func:`canalsurf.metrics.roundness` of its points.
+    inside : (float, int)
+        The length of its spine's longest stretch inside another branch's tube and that branch's id
+        (:func:`longest_inside`).
 
     Returns
     -------
@@ -203,6 +271,10 @@ def branch_quality(*, rms: float, radius: float, noise: float, coverage: float, 
         found.append(("poor", f"a gap of {gap / radius:.1f} radii with no points along the spine"))
     elif gap > CHECK_GAP_RADII * radius:
         found.append(("check", f"a gap of {gap / radius:.1f} radii with no points along the spine"))
+    length, other = inside
+    if length > 0:
+        found.append(("poor", f"its spine runs inside the tube of branch {other} along {length / radius:.1f} radii "
+                              "(one of the two is misplaced there)"))
     return _summed(found)
 
 

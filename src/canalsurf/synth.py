@@ -2165,7 +2165,7 @@ def random_case(family: str, seed: int):
     * ``pole``: :func:`make_pole_scan`, radius 4 - 15 cm, 1,000 - 3,000 points on it, one scanner,
       1 cm quantisation;
     * ``network``: a named network (not the plant), 15,000 - 40,000 points, noise 0.5 - 3 %; a bundle of
-      2 - 4 pipes of radii 0.5 - 1.5, touching or up to a radius apart;
+      2 - 5 pipes of radii 0.3 - 2, touching or up to a radius apart;
     * ``plant``: one bay of the plant (23 tubes of radii 0.5 - 2, racks, elbows, tees, a floor),
       40,000 - 160,000 points, noise 0.5 - 3 %.
 
@@ -2193,6 +2193,6 @@ def random_case(family: str, seed: int):
     if family == "plant":
         return make_network("plant", n=int(rng.integers(40000, 160001)), noise=rng.uniform(0.005, 0.03), rng=rng)
     name, n, noise = str(rng.choice(_CASE_NETWORKS)), int(rng.integers(15000, 40001)), rng.uniform(0.005, 0.03)
-    options = {} if name != "bundle" else {"radii": tuple(rng.uniform(0.5, 1.5, int(rng.integers(2, 5)))),
+    options = {} if name != "bundle" else {"radii": tuple(rng.uniform(0.3, 2.0, int(rng.integers(2, 6)))),
                                            "gap": float(rng.choice([0.0, rng.uniform(0.0, 1.0)]))}
     return make_network(name, n=n, noise=noise, rng=rng, **options)
