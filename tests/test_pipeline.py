@@ -1021,3 +1021,21 @@ def test_an_open_end_that_veers_into_another_tube_is_fitted_again_straight_on(en
         assert 2.25 <= ends[1, 1] <= 2.5
         assert np.allclose(radius(np.linspace(0, 1, 5)), 0.5)
         assert _veered_ends([wide, thin], skel, {1}) == {}  # once only
+
+
+def test_a_joined_fit_that_leaves_the_tube_of_one_of_its_pieces_is_found():
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _leaves
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    piece = SimpleNamespace(**vars(_piece((0.0, 0, 0), (6.0, 0, 0), radius=0.5)), eq6=0.5)
+    x = np.linspace(0.0, 12.0, 121)
+
+    def joined(bump_at):  # a fit along the piece and on, with a dip of 2 radii around bump_at
+        y = -1.0 * np.exp(-((x - bump_at) / 0.6) ** 2)
+        spine = pspline_fit(x / 12.0, np.column_stack([x, y, np.zeros_like(x)]), n_segments=40)
+        return SimpleNamespace(spine=spine, radius=constant_spline(0.5), eq6=0.5)
+
+    assert _leaves(joined(3.0), piece)       # abreast of the piece: it left the piece's tube
+    assert not _leaves(joined(9.0), piece)   # past the piece's end, in the gap to the other piece
