@@ -2153,26 +2153,27 @@ def _join_at_junctions(fits: list, skel: Skeleton):
 
 
 def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray, list]:
-    """The branches less those whose spine folds once continued into its junctions, and why each of
-    those was left out; a junction left with one branch end becomes an open end, with none it goes.
+    """The branches less those whose spine folds once continued into its junctions and those that are
+    a crease between others (:func:`_crease`), and why each of those was left out; a junction left with
+    one branch end becomes an open end, with none it goes.
 
     Every branch was checked for folds before the junctions were placed (:func:`_quality`); a spine
     continued into a junction that lies behind its end can fold.  A scene keeps its other tubes; a
-    scan whose every branch folds is refused.
+    scan whose every branch is left out is refused.
     """
     kept, left_out = [], []
     for fit, junctions in zip(fits, _junctions_met(fits, junction_points)):
-        folded = fold(fit.spine, fit.radius, fit.closed, junctions=junctions)
-        if folded:
-            left_out.append(folded)
+        why = fold(fit.spine, fit.radius, fit.closed, junctions=junctions) or _crease(fit, fits)
+        if why:
+            left_out.append(why)
         else:
             kept.append(fit)
     if not kept:
         raise ReconstructionError(f"{left_out[0]} — the model cannot be trusted; crop the scan to fewer tubes, "
                                   "or report it with the input")
     if left_out:
-        log.info("%d of %d branches fold once joined at their junctions (left out): %s", len(left_out),
-                 len(fits), left_out[0])
+        log.info("%d of %d branches fold once joined at their junctions, or lie in a crease (left out): %s",
+                 len(left_out), len(fits), left_out[0])
         meeting = np.bincount([j for f in kept for j in f.ends if j is not None], minlength=len(junction_points))
         used = np.flatnonzero(meeting >= 2)
         renumber = {int(j): n for n, j in enumerate(used)}
@@ -2180,6 +2181,39 @@ def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray
             fit.ends = tuple(None if j is None else renumber.get(j) for j in fit.ends)
         junction_points = junction_points[used]
     return kept, junction_points, left_out
+
+
+#: A branch seen over less than CREASE_DEGREES of its circumference (the median) whose inliers lie on the
+#: surfaces of other branches (within their outlier cut) for more than CREASE_SHARE of them is no tube:
+#: the crease where two wide pipes touch, seen from its open side, fits a narrow tube whose points are
+#: theirs (a bundle of the trust checks, 100 % of its points on theirs).  A real tube that touches others
+#: shares only the points near the lines where they touch: 15 - 29 % of them, within 5 % of the radius.
+CREASE_DEGREES, CREASE_SHARE = 180.0, 0.8
+#: Points of a branch (spread over its own, which lie in no order along it) the test looks at: enough
+#: for a median coverage and a share, few enough not to cost a scene of hundreds of branches a second.
+CREASE_POINTS = 500
+
+
+def _crease(fit: _BranchFit, fits: list) -> str:
+    """Why ``fit`` is a crease between other ``fits`` (CREASE_SHARE), or ``""``."""
+    points = fit.points[np.linspace(0, len(fit.points) - 1, min(len(fit.points), CREASE_POINTS)).astype(int)]
+    t, residual = footpoints(points, fit.spine, fit.radius, closed=fit.closed)
+    near = ~is_stray(residual, fit.eq6)
+    stretches = angular_coverage(points[near], fit.spine, t[near])
+    if not len(stretches) or np.median(stretches) >= CREASE_DEGREES:
+        return ""
+    pts = points[near]
+    low, high = pts.min(axis=0), pts.max(axis=0)
+    on = np.zeros(len(pts), bool)
+    for other in fits:
+        if other is fit or (other.points.min(axis=0) > high).any() or (other.points.max(axis=0) < low).any():
+            continue
+        _, res = footpoints(pts, other.spine, other.radius, closed=other.closed)
+        on |= np.abs(res - np.median(other.residual)) <= outlier_cut(other.residual, other.eq6)
+    share = float(on.mean()) if len(on) else 0.0
+    if share <= CREASE_SHARE:
+        return ""
+    return f"{share:.0%} of its points lie on other tubes (a crease between them, seen from one side)"
 
 
 def _junctions_met(fits: list, junction_points: np.ndarray) -> list:

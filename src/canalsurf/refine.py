@@ -585,8 +585,10 @@ def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, *, stiff, floor: float, solver: Blo
         dof = solver.trace_product(JtWJ)
     # dof = tr(A^-1 JtWJ); a weight that leaves too few degrees of freedom to the noise is not scored.
     fit_rss = rss + 2 * steps @ g + np.einsum("ij,ij->i", steps @ JtWJ, steps)
-    gcv = np.where(GCV_GAMMA * dof < nw, nw * np.maximum(fit_rss, 0.0) / np.maximum(nw - GCV_GAMMA * dof, 1e-300) ** 2,
-                   np.inf)
+    # Where dof comes within 1e-150 of nw the square underflows: that weight scores inf, as it should.
+    with np.errstate(divide="ignore"):
+        gcv = np.where(GCV_GAMMA * dof < nw,
+                       nw * np.maximum(fit_rss, 0.0) / np.maximum(nw - GCV_GAMMA * dof, 1e-300) ** 2, np.inf)
     return float(lams[int(np.argmin(gcv))]) if np.isfinite(gcv).any() else float(floor)
 
 
