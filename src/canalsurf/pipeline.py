@@ -2196,6 +2196,8 @@ CREASE_POINTS = 500
 
 def _crease(fit: _BranchFit, fits: list) -> str:
     """Why ``fit`` is a crease between other ``fits`` (CREASE_SHARE), or ``""``."""
+    if not len(fit.points):
+        return ""
     points = fit.points[np.linspace(0, len(fit.points) - 1, min(len(fit.points), CREASE_POINTS)).astype(int)]
     t, residual = footpoints(points, fit.spine, fit.radius, closed=fit.closed)
     near = ~is_stray(residual, fit.eq6)
