@@ -2015,8 +2015,8 @@ def _clear_of_contacts(fits: list, skel: Skeleton) -> list:
 
     There (a bundle's pipes, a pipe laid on another) each tube's points lie within the outlier cut of
     the other's surface too, and a branch's fit took in some of its neighbour's: they lie outside its
-    surface, and drew its spine towards the neighbour and its radius up (on ``synth``'s bundle by
-    0.1 % of the radius, 4 - 5 times the best fit of the tube's own points, ``benchmarks/oracle.py``).
+    surface, and drew its spine towards the neighbour and its radius up (on ``synth``'s bundle by up to
+    0.2 % of the radius, 4 - 5 times the best fit of the tube's own points, ``docs/oracle.md``).
     Left out are the points whose place on the branch's surface (the footpoint's circle, along the
     point's direction from the spine) lies within the two branches' outlier cuts of the other's
     surface: chosen by where they lie round the spine, not by their own residual, the points left are
@@ -2026,11 +2026,7 @@ def _clear_of_contacts(fits: list, skel: Skeleton) -> list:
     """
     cuts = [outlier_cut(f.residual, f.eq6) for f in fits]
     out = list(fits)
-    touching = _touching(fits, skel, cuts)
-    if touching:
-        log.info("%d branches touch another they do not meet at a junction: fitted again without the points "
-                 "where they touch", len(touching))
-    for i, others in touching.items():
+    for i, others in _touching(fits, skel, cuts).items():
         fit = fits[i]
         centre = fit.spine(fit.t)
         off = fit.points - centre
@@ -2054,6 +2050,10 @@ def _clear_of_contacts(fits: list, skel: Skeleton) -> list:
         t[keep], residual[keep] = new.t, new.residual
         t[shared], residual[shared] = footpoints(fit.points[shared], new.spine, new.radius, closed=fit.closed)
         out[i] = replace(fit, spine=new.spine, radius=new.radius, residual=residual, t=t)
+    refitted = sum(a is not b for a, b in zip(out, fits))
+    if refitted:
+        log.info("%d branches touch another they do not meet at a junction: fitted again without the points "
+                 "where they touch", refitted)
     return out
 
 
