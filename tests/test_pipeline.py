@@ -1055,3 +1055,36 @@ def test_tubes_that_touch_but_meet_at_no_junction_are_paired(beside, ends, touch
     fits = [_piece((0.0, 0, 0), (10.0, 0, 0)), _piece((0.0, beside, 0), (10.0, beside, 0))]
     skel = SimpleNamespace(branches=[SimpleNamespace(ends=e) for e in ends])
     assert _touching(fits, skel, [0.06, 0.06]) == ({0: [1], 1: [0]} if touching else {})
+
+
+
+
+def test_touching_fits_are_fitted_again_without_their_line_of_contact_and_keep_their_points():
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _BranchFit, _clear_of_contacts
+    from canalsurf.refine import footpoints
+    from canalsurf.spine import constant_spline, pspline_fit
+
+    rng = np.random.default_rng(0)
+    offsets = (0.0, 2.0)  # two pipes of radius 1 along x, touching; 3 % noise
+    angle, x = rng.uniform(0, 2 * np.pi, 40_000), rng.uniform(0, 24, 40_000)
+    r = 1.0 + rng.normal(scale=0.03, size=40_000)
+    cloud = np.column_stack([x, np.repeat(offsets, 20_000) + r * np.cos(angle), r * np.sin(angle)])
+    # Each point goes to the nearer surface, as the fits' assignment does: each pipe takes some of the
+    # other's.  Each fit starts 5 % of the radius towards the other, 10 % too wide.
+    distance = np.array([np.abs(np.hypot(cloud[:, 1] - off, cloud[:, 2]) - 1.0) for off in offsets])
+    u = np.linspace(0.0, 1.0, 50)
+    fits = []
+    for k, off in enumerate(offsets):
+        points = cloud[distance[k] <= distance[1 - k]]
+        lean = 0.05 if k == 0 else -0.05
+        spine = pspline_fit(u, np.c_[24 * u, np.full(50, off + lean), np.zeros(50)], n_segments=6)
+        t, residual = footpoints(points, spine, constant_spline(1.1), closed=False)
+        fits.append(_BranchFit("pipe", spine, constant_spline(1.1), False, (None, None), 1.0, (6, 6), residual, t,
+                               points))
+    skel = SimpleNamespace(branches=[SimpleNamespace(ends=(None, None))] * 2)
+    for k, (before, after) in enumerate(zip(fits, _clear_of_contacts(fits, skel))):
+        y = after.spine(np.linspace(0.1, 0.9, 100))[:, 1].mean() - offsets[k]
+        assert abs(y) < 0.002 and abs(float(after.radius(0.5)) - 1.0) < 0.003, (y, after.radius(0.5))
+        assert after.points is before.points and len(after.t) == len(after.residual) == len(before.points)
