@@ -1041,22 +1041,16 @@ def test_a_joined_fit_that_leaves_the_tube_of_one_of_its_pieces_is_found():
     assert not _leaves(joined(9.0), piece)   # past the piece's end, in the gap to the other piece
 
 
-@pytest.mark.parametrize(("beside", "ends", "touching"), [
-    (2.0, ((None, None), (None, None)), True),    # touching along their length
-    (2.1, ((None, None), (None, None)), True),    # a gap within the two outlier cuts
-    (3.0, ((None, None), (None, None)), False),   # a gap of a radius
-    (2.0, ((None, 0), (0, None)), False),         # meeting at a junction: its reach is left out already
+@pytest.mark.parametrize(("beside", "near"), [
+    (2.0, True),    # touching along their length
+    (2.1, True),    # a gap within the two outlier cuts
+    (3.0, False),   # a gap of a radius
 ])
-def test_tubes_that_touch_but_meet_at_no_junction_are_paired(beside, ends, touching):
-    from types import SimpleNamespace
-
-    from canalsurf.pipeline import _touching
+def test_tubes_whose_surfaces_come_within_their_outlier_cuts_are_paired(beside, near):
+    from canalsurf.pipeline import _near_pairs
 
     fits = [_piece((0.0, 0, 0), (10.0, 0, 0)), _piece((0.0, beside, 0), (10.0, beside, 0))]
-    skel = SimpleNamespace(branches=[SimpleNamespace(ends=e) for e in ends])
-    assert _touching(fits, skel, [0.06, 0.06]) == ({0: [1], 1: [0]} if touching else {})
-
-
+    assert _near_pairs(fits, [0.06, 0.06]) == ({0: [1], 1: [0]} if near else {})
 
 
 def test_touching_fits_are_fitted_again_without_their_line_of_contact_and_keep_their_points():

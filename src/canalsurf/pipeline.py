@@ -2001,7 +2001,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
     return skel, fits
 
 
-#: Samples of each spine per (smallest) radius where :func:`_touching` looks for tubes that touch.
+#: Samples of each spine per (smallest) radius where :func:`_near_pairs` looks for tubes that touch.
 CONTACT_SAMPLES_PER_RADIUS = 2
 #: A branch is fitted again without its points on the line of contact only if at least this share of
 #: them is left: a branch whose points mostly lie on others' surfaces (a crease between two pipes) is
@@ -2024,9 +2024,13 @@ def _clear_of_contacts(fits: list, skel: Skeleton) -> list:
     checks (where its surface was seen, how well it fits) take them in.  A branch that cannot be
     fitted again keeps its fit.
     """
-    cuts = [outlier_cut(f.residual, f.eq6) for f in fits]
+    met = [{j for j in b.ends if j is not None} for b in skel.branches]
     out = list(fits)
-    for i, others in _touching(fits, skel, cuts).items():
+    cuts = [outlier_cut(f.residual, f.eq6) for f in fits]
+    for i, near in _near_pairs(fits, cuts).items():
+        others = [j for j in near if not met[i] & met[j]]
+        if not others:
+            continue
         fit = fits[i]
         centre = fit.spine(fit.t)
         off = fit.points - centre
@@ -2057,10 +2061,9 @@ def _clear_of_contacts(fits: list, skel: Skeleton) -> list:
     return out
 
 
-def _touching(fits: list, skel: Skeleton, cuts: list) -> dict:
-    """``{branch: [other branches]}``: the pairs of branches that meet at no junction and whose
-    surfaces may come within their outlier ``cuts`` of each other (their spines' samples within both
-    radii, cuts and half sample steps)."""
+def _near_pairs(fits: list, cuts: list) -> dict:
+    """``{branch: [other branches]}``: the pairs of branches whose surfaces may come within their outlier
+    ``cuts`` of each other (their spines' samples within both radii, cuts and half sample steps)."""
     samples, reach = [], []
     for fit, cut in zip(fits, cuts):
         r = fit.radius(np.linspace(0.0, 1.0, 64))
@@ -2072,11 +2075,8 @@ def _touching(fits: list, skel: Skeleton, cuts: list) -> dict:
     lo = np.array([s.min(axis=0) for s in samples]) - reach[:, None]
     hi = np.array([s.max(axis=0) for s in samples]) + reach[:, None]
     overlap = np.all((lo[:, None] <= hi[None]) & (hi[:, None] >= lo[None]), axis=2)
-    met = [{j for j in b.ends if j is not None} for b in skel.branches]
     pairs = {}
     for i, j in zip(*np.nonzero(np.triu(overlap, 1))):
-        if met[i] & met[j]:
-            continue
         d, _ = cKDTree(samples[j]).query(samples[i], distance_upper_bound=reach[i] + reach[j])
         if np.isfinite(d).any():
             pairs.setdefault(int(i), []).append(int(j))
@@ -2246,8 +2246,10 @@ def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray
     scan whose every branch is left out is refused.
     """
     kept, left_out = [], []
-    for fit, junctions in zip(fits, _junctions_met(fits, junction_points)):
-        why = fold(fit.spine, fit.radius, fit.closed, junctions=junctions) or _crease(fit, fits)
+    near = _near_pairs(fits, [outlier_cut(f.residual, f.eq6) if len(f.residual) else 0.0 for f in fits])
+    for i, (fit, junctions) in enumerate(zip(fits, _junctions_met(fits, junction_points))):
+        why = (fold(fit.spine, fit.radius, fit.closed, junctions=junctions)
+               or _crease(fit, [fits[j] for j in near.get(i, ())]))
         if why:
             left_out.append(why)
         else:
@@ -2267,39 +2269,34 @@ def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray
     return kept, junction_points, left_out
 
 
-#: A branch seen over less than CREASE_DEGREES of its circumference (the median) whose inliers lie on the
-#: surfaces of other branches (within their outlier cut) for more than CREASE_SHARE of them is no tube:
-#: the crease where two wide pipes touch, seen from its open side, fits a narrow tube whose points are
-#: theirs (a bundle of the trust checks, 100 % of its points on theirs).  A real tube that touches others
-#: shares only the points near the lines where they touch: 15 - 29 % of them, within 5 % of the radius.
-CREASE_DEGREES, CREASE_SHARE = 180.0, 0.8
+#: A branch whose inliers lie on the surfaces of other branches (within their outlier cut) for more than
+#: CREASE_SHARE of them is no tube: the crease where two wide pipes touch, seen from its open side, fits
+#: a narrow tube whose points are theirs (a bundle of the trust checks, 100 % of its points on theirs),
+#: and so does the gap between two pipes' facing surfaces, whose points surround it (273 degrees on a
+#: random bundle).  A real tube that touches others shares only the points near the lines where they
+#: touch: 15 - 29 % of them, within 5 % of the radius.
+CREASE_SHARE = 0.8
 #: Points of a branch (spread over its own, which lie in no order along it) the test looks at: enough
-#: for a median coverage and a share, few enough not to cost a scene of hundreds of branches a second.
-CREASE_POINTS = 500
+#: for a share, few enough not to cost a scene of hundreds of branches a second.
+CREASE_POINTS = 100
 
 
-def _crease(fit: _BranchFit, fits: list) -> str:
-    """Why ``fit`` is a crease between other ``fits`` (CREASE_SHARE), or ``""``."""
-    if not len(fit.points):
+def _crease(fit: _BranchFit, others: list) -> str:
+    """Why ``fit`` is a crease between the ``others`` (CREASE_SHARE), the fits whose surfaces come near
+    its own (:func:`_near_pairs`), or ``""``."""
+    if not len(fit.points) or not others:
         return ""
     points = fit.points[np.linspace(0, len(fit.points) - 1, min(len(fit.points), CREASE_POINTS)).astype(int)]
-    t, residual = footpoints(points, fit.spine, fit.radius, closed=fit.closed)
-    near = ~is_stray(residual, fit.eq6)
-    stretches = angular_coverage(points[near], fit.spine, t[near])
-    if not len(stretches) or np.median(stretches) >= CREASE_DEGREES:
-        return ""
-    pts = points[near]
-    low, high = pts.min(axis=0), pts.max(axis=0)
+    _, residual = footpoints(points, fit.spine, fit.radius, closed=fit.closed)
+    pts = points[~is_stray(residual, fit.eq6)]
     on = np.zeros(len(pts), bool)
-    for other in fits:
-        if other is fit or (other.points.min(axis=0) > high).any() or (other.points.max(axis=0) < low).any():
-            continue
+    for other in others:
         _, res = footpoints(pts, other.spine, other.radius, closed=other.closed)
         on |= np.abs(res - np.median(other.residual)) <= outlier_cut(other.residual, other.eq6)
     share = float(on.mean()) if len(on) else 0.0
     if share <= CREASE_SHARE:
         return ""
-    return f"{share:.0%} of its points lie on other tubes (a crease between them, seen from one side)"
+    return f"{share:.0%} of its points lie on other tubes (a crease or a gap between them)"
 
 
 def _junctions_met(fits: list, junction_points: np.ndarray) -> list:
