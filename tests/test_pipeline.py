@@ -656,6 +656,57 @@ def test_a_hook_at_the_very_end_is_cut_with_its_points():
     assert guess is first and not on.any()
 
 
+def _hairpin_spine(first: float, second: float):
+    """A spine ``first`` long along y = 2.2 towards x = 0, a half turn of radius 1.1, ``second`` along y = 0."""
+    from canalsurf.spine import pspline_fit
+
+    a = np.linspace(first, 0.0, 200)
+    theta = np.linspace(np.pi / 2, 3 * np.pi / 2, 200)[1:]
+    b = np.linspace(0.0, second, 500)[1:]
+    path = np.concatenate([np.c_[a, 0 * a + 2.2, 0 * a],
+                           np.c_[1.1 * np.cos(theta), 1.1 + 1.1 * np.sin(theta), 0 * theta],
+                           np.c_[b, 0 * b, 0 * b]])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    return pspline_fit(s / s[-1], path, n_segments=40)
+
+
+@pytest.mark.parametrize(("ends", "y", "far"), [((None, None), 0.0, 10.0), ((None, 0), 0.0, 10.0),
+                                                ((0, None), 2.2, 4.0)])
+def test_a_folded_fit_is_fitted_again_from_its_longer_leg(ends, y, far):
+    """A fit of radius 1 that ran 4 along a neighbour, round its end (a half turn of radius 1.1) and 10
+    back along its own tube: it is fitted again from its own leg, from 2 radii past the turn's apex to
+    its end.  Where the short leg starts at a junction, that leg is the branch's."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _longest_leg
+    from canalsurf.spine import constant_spline, curve_length
+
+    spine = _hairpin_spine(4.0, 10.0)
+    fit = SimpleNamespace(closed=False, spine=spine, radius=constant_spline(1.0), eq6=1.0, segments=(40, 10))
+    leg = _longest_leg(fit, ends)
+    line = leg["spine"](np.linspace(0.0, 1.0, 200))
+    assert np.abs(line[:, 1] - y).max() < 0.02 and np.abs(line[:, 2]).max() < 0.02
+    # 2 radii on from the apex: the last quarter round (1.73) and 0.27 along the leg
+    assert 0.17 < line[:, 0].min() < 0.37 and line[:, 0].max() > far - 0.1
+    assert np.allclose(leg["radius"](np.linspace(0.0, 1.0, 20)), 1.0)
+    share = curve_length(leg["spine"]) / curve_length(spine)  # of the fit's knot intervals
+    assert abs(leg["segments"][0] - 40 * share) <= 1 and abs(leg["segments"][1] - 10 * share) <= 1
+
+
+@pytest.mark.parametrize(("first", "second", "ends"), [(4.0, 10.0, (0, 0)), (1.5, 1.5, (None, None))])
+def test_a_fold_between_junctions_or_with_short_legs_leaves_no_leg(first, second, ends):
+    """A hairpin between two junctions (the tubes unite there), or whose legs run less than LEG_RADII
+    past the 2 radii cut at the turn, leaves no leg to fit."""
+    from types import SimpleNamespace
+
+    from canalsurf.pipeline import _longest_leg
+    from canalsurf.spine import constant_spline
+
+    fit = SimpleNamespace(closed=False, spine=_hairpin_spine(first, second), radius=constant_spline(1.0),
+                          eq6=1.0, segments=(40, 10))
+    assert _longest_leg(fit, ends) is None
+
+
 @pytest.mark.parametrize(("sparse", "share", "stray", "ends", "cut"), [
     # an end grown 8 radii across a rack's ends: a few inliers per radius among strays -- cut
     (8.0, 0.05, 0.7, (None, None), True),

@@ -1484,9 +1484,9 @@ def _other_tube(fit: _BranchFit, guess: dict, side: tuple, rest: tuple) -> bool:
     return abs(radii[0] - radii[1]) > MAX_GAP_RADIUS_CHANGE * radii[1]
 
 
-def _fit_one(i: int, job: dict) -> _BranchFit | str:
+def _fit_one(i: int, job: dict, unfold: bool = True) -> _BranchFit | str:
     """Branch ``i`` fitted to its points (:func:`_assign`, grown at its open ends) and checked; or why it
-    is no tube.
+    is no tube.  With ``unfold``, a fit that folds is fitted again from its longer leg (:func:`_longest_leg`).
 
     ``job`` holds what every branch's fit shares (see :func:`_fit_network`).
     """
@@ -1519,7 +1519,50 @@ def _fit_one(i: int, job: dict) -> _BranchFit | str:
             raise
         return str(exc).split(" — ")[0]
     ok, why = _judged(fit, idx, job)
+    if not ok and unfold and job["refine"] and fold(fit.spine, fit.radius, fit.closed):
+        leg = _longest_leg(fit, estimates.skel.branches[i].ends)
+        if leg is not None:
+            again = _fit_one(i, {**job, "estimates": estimates.replaced(i, {**estimates.guesses[i], **leg})},
+                             unfold=False)
+            if not isinstance(again, str):
+                return again
     return fit if ok else why
+
+
+#: A fit that folds (:func:`canalsurf.quality.fold`) is fitted again from its longer leg, cut HOOK_RADII / 2
+#: radii past the turn, if that is at least LEG_RADII radii long and the part cut off ends at no junction:
+#: a hairpin of two pipes side by side -- the thin set of the two joined round their ends, or the fit of
+#: one grown round the other's end and back along it -- is the tube of either leg, and left out whole,
+#: the tube is missing and a neighbour's end can veer into its points.
+LEG_RADII = 2.0
+
+
+def _longest_leg(fit: _BranchFit, ends: tuple) -> dict | None:
+    """The estimate (spine, radius, segments) of the longer leg of a folded fit: from ``HOOK_RADII / 2``
+    radii past the point where its tangent has turned by a right angle from the leg's end, to that end;
+    ``None`` if it has no such turn, no leg is LEG_RADII long, or the part cut off would end at a junction
+    (``ends``: there the tubes unite)."""
+    if fit.closed:
+        return None
+    t, pts = sample_arclength(fit.spine, END_SAMPLES)
+    s = polyline_arclength(pts)
+    tangent = fit.spine.derivative()(t)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    margin, legs = HOOK_RADII / 2 * fit.eq6, []
+    for end, turned in ((0, tangent @ tangent[0] < 0), (1, tangent @ tangent[-1] < 0)):
+        k = np.flatnonzero(turned)
+        if not len(k) or ends[1 - end] is not None:
+            continue
+        a, b = (s[k.max()] + margin, s[-1]) if end == 1 else (0.0, s[k.min()] - margin)
+        if b - a >= LEG_RADII * fit.eq6:
+            legs.append((b - a, np.interp([a, b], s, t)))
+    if not legs:
+        return None
+    length, (a, b) = max(legs, key=lambda leg: leg[0])
+    nseg, rseg = (max(1, int(round(n * length / s[-1]))) for n in fit.segments)
+    spine, (radius,), _ = arclength_reparametrize(fit.spine, n_segments=nseg, closed=False, a=a, b=b,
+                                                  extra=[(fit.radius, rseg)])
+    return {"spine": spine, "radius": radius, "segments": (nseg, rseg)}
 
 
 def _judged(fit: _BranchFit, idx: np.ndarray, job: dict) -> tuple[bool, str]:
