@@ -670,41 +670,51 @@ def _hairpin_spine(first: float, second: float):
     return pspline_fit(s / s[-1], path, n_segments=40)
 
 
-@pytest.mark.parametrize(("ends", "y", "far"), [((None, None), 0.0, 10.0), ((None, 0), 0.0, 10.0),
-                                                ((0, None), 2.2, 4.0)])
-def test_a_folded_fit_is_fitted_again_from_its_longer_leg(ends, y, far):
-    """A fit of radius 1 that ran 4 along a neighbour, round its end (a half turn of radius 1.1) and 10
-    back along its own tube: it is fitted again from its own leg, from 2 radii past the turn's apex to
-    its end.  Where the short leg starts at a junction, that leg is the branch's."""
+def _folded(first: float, second: float, ends: tuple):
+    """A fit of radius 1 along :func:`_hairpin_spine` and its skeleton branch (200 vertices, 400 thin points)."""
     from types import SimpleNamespace
 
-    from canalsurf.pipeline import _longest_leg
-    from canalsurf.spine import constant_spline, curve_length
+    from canalsurf.skeleton import SkeletonBranch
+    from canalsurf.spine import constant_spline
 
-    spine = _hairpin_spine(4.0, 10.0)
+    spine = _hairpin_spine(first, second)
     fit = SimpleNamespace(closed=False, spine=spine, radius=constant_spline(1.0), eq6=1.0, segments=(40, 10))
-    leg = _longest_leg(fit, ends)
-    line = leg["spine"](np.linspace(0.0, 1.0, 200))
-    assert np.abs(line[:, 1] - y).max() < 0.02 and np.abs(line[:, 2]).max() < 0.02
-    # 2 radii on from the apex: the last quarter round (1.73) and 0.27 along the leg
-    assert 0.17 < line[:, 0].min() < 0.37 and line[:, 0].max() > far - 0.1
-    assert np.allclose(leg["radius"](np.linspace(0.0, 1.0, 20)), 1.0)
-    share = curve_length(leg["spine"]) / curve_length(spine)  # of the fit's knot intervals
-    assert abs(leg["segments"][0] - 40 * share) <= 1 and abs(leg["segments"][1] - 10 * share) <= 1
+    return fit, SkeletonBranch(spine(np.linspace(0.0, 1.0, 200)), np.full(200, 2.0), np.ones(200), ends)
+
+
+@pytest.mark.parametrize(("ends", "legs"), [
+    # both legs, the longer first, each from 2 radii past the apex (the last quarter round, 1.73, and
+    # 0.27 on along the leg) to its end
+    ((None, None), [(0.0, 10.0, (None, None)), (2.2, 4.0, (None, None))]),
+    # a leg whose part cut off ends at a junction is none: there the tubes unite
+    ((None, 0), [(0.0, 10.0, (None, 0))]),
+    ((0, None), [(2.2, 4.0, (0, None))])])
+def test_a_folded_fit_is_cut_into_its_legs(ends, legs):
+    """A fit that ran 4 along a neighbour, round its end (a half turn of radius 1.1) and 10 back along
+    its own tube is fitted again as the skeleton branches of its legs."""
+    from canalsurf.pipeline import _legs
+
+    fit, branch = _folded(4.0, 10.0, ends)
+    out = _legs(fit, branch)
+    assert len(out) == len(legs)
+    for leg, (y, far, leg_ends) in zip(out, legs):
+        assert leg.ends == leg_ends and not leg.closed
+        assert np.abs(leg.points[:, 1] - y).max() < 0.02 and np.abs(leg.points[:, 2]).max() < 0.02
+        assert 0.17 < leg.points[:, 0].min() < 0.37 and leg.points[:, 0].max() > far - 0.1
+        # in the fit's direction: the own leg ends at the fit's last end, the neighbour's starts at its first
+        assert leg.points[-1 if y == 0.0 else 0, 0] > far - 0.1
+        assert np.allclose(leg.radius, 1.0)
+        share = (far - 0.27) / (14.0 + 1.1 * np.pi)  # of the branch's length, so of its vertices and weight
+        assert abs(len(leg.points) / 200 - share) < 0.02 and abs(leg.weights.sum() / 400 - share) < 0.02
 
 
 @pytest.mark.parametrize(("first", "second", "ends"), [(4.0, 10.0, (0, 0)), (1.5, 1.5, (None, None))])
 def test_a_fold_between_junctions_or_with_short_legs_leaves_no_leg(first, second, ends):
     """A hairpin between two junctions (the tubes unite there), or whose legs run less than LEG_RADII
     past the 2 radii cut at the turn, leaves no leg to fit."""
-    from types import SimpleNamespace
+    from canalsurf.pipeline import _legs
 
-    from canalsurf.pipeline import _longest_leg
-    from canalsurf.spine import constant_spline
-
-    fit = SimpleNamespace(closed=False, spine=_hairpin_spine(first, second), radius=constant_spline(1.0),
-                          eq6=1.0, segments=(40, 10))
-    assert _longest_leg(fit, ends) is None
+    assert _legs(*_folded(first, second, ends)) == []
 
 
 @pytest.mark.parametrize(("sparse", "share", "stray", "ends", "cut"), [

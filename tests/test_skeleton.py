@@ -659,6 +659,17 @@ def test_a_tee_whose_run_broke_off_at_the_junction_is_mended(run_end, mended):
         assert side.points[:, 0].min() > -0.05 and side.points[:, 1].min() == pytest.approx(0.0)
 
 
+def test_a_tube_beside_a_corner_is_no_broken_tee():
+    """An open end 1.3 beside the corner's leg, parallel to it -- the sum of the radii: a tube touching it
+    side by side, as a hairpin's leg cut from the fit of two pipes -- is no broken-off half of a run."""
+    from canalsurf.skeleton import _broken_tees_mended
+
+    corner = _polyline((0.0, 5.0, 0.0), (0.0, 0.0, 0.0), (-8.0, 0.0, 0.0), radius=0.5)
+    beside = _polyline((0.6, 0.0, 1.3), (8.6, 0.0, 1.3), radius=0.8)
+    _assert_mended_at_origin(_broken_tees_mended(Skeleton([corner, beside], np.empty((0, 3)), 0.1)), False,
+                             corner, beside)
+
+
 def _assert_mended_at_origin(out: Skeleton, mended: bool, *before: SkeletonBranch) -> None:
     """Three branches meet at a junction at the origin, no thin point lost; or the two are as they were."""
     if not mended:

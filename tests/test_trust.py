@@ -175,7 +175,7 @@ def test_a_thin_pipe_whose_fit_ran_round_a_neighbours_end_is_found():
     # Five pipes side by side, touching (a random bundle, seed 150 of a wider draw than the benchmark's):
     # the fit of the r = 0.86 pipe grew round the end of the r = 1.24 pipe beside it and back along it,
     # and was left out as a hairpin; the r = 0.55 pipe's end then veered into its points, graded check
-    # and 16 % of a radius off.  The folded fit is fitted again from its longer leg.
+    # and 16 % of a radius off.  The folded fit is fitted again as its legs.
     truth = make_network("bundle", n=20_544, noise=0.02757490674477871, rng=150,
                          radii=(1.325, 1.937, 1.239, 0.861, 0.553), gap=0.0)
     network, errors = errors_of(truth)

@@ -1484,9 +1484,9 @@ def _other_tube(fit: _BranchFit, guess: dict, side: tuple, rest: tuple) -> bool:
     return abs(radii[0] - radii[1]) > MAX_GAP_RADIUS_CHANGE * radii[1]
 
 
-def _fit_one(i: int, job: dict, unfold: bool = True) -> _BranchFit | str:
+def _fit_one(i: int, job: dict) -> _BranchFit | _Folded | str:
     """Branch ``i`` fitted to its points (:func:`_assign`, grown at its open ends) and checked; or why it
-    is no tube.  With ``unfold``, a fit that folds is fitted again from its longer leg (:func:`_longest_leg`).
+    is no tube, with the legs to fit instead where it folds.
 
     ``job`` holds what every branch's fit shares (see :func:`_fit_network`).
     """
@@ -1519,31 +1519,39 @@ def _fit_one(i: int, job: dict, unfold: bool = True) -> _BranchFit | str:
             raise
         return str(exc).split(" — ")[0]
     ok, why = _judged(fit, idx, job)
-    if not ok and unfold and job["refine"] and fold(fit.spine, fit.radius, fit.closed):
-        leg = _longest_leg(fit, estimates.skel.branches[i].ends)
-        if leg is not None:
-            again = _fit_one(i, {**job, "estimates": estimates.replaced(i, {**estimates.guesses[i], **leg})},
-                             unfold=False)
-            if not isinstance(again, str):
-                return again
+    if not ok and job["refine"] and fold(fit.spine, fit.radius, fit.closed):
+        legs = _legs(fit, estimates.skel.branches[i])
+        if legs:
+            return _Folded(why, legs)
     return fit if ok else why
 
 
-#: A fit that folds (:func:`canalsurf.quality.fold`) is fitted again from its longer leg, cut HOOK_RADII / 2
-#: radii past the turn, if that is at least LEG_RADII radii long and the part cut off ends at no junction:
-#: a hairpin of two pipes side by side -- the thin set of the two joined round their ends, or the fit of
-#: one grown round the other's end and back along it -- is the tube of either leg, and left out whole,
-#: the tube is missing and a neighbour's end can veer into its points.
+@dataclass
+class _Folded:
+    """A branch whose fit folds (``why``), and the skeleton branches of its legs (:func:`_legs`): it is
+    fitted again as those."""
+
+    why: str
+    legs: list
+
+
+#: A fit that folds (:func:`canalsurf.quality.fold`) is cut where its spine has turned round, each leg
+#: HOOK_RADII / 2 radii past the turn, and the legs at least LEG_RADII radii long whose part cut off ends
+#: at no junction are fitted again as branches of their own: a hairpin of two pipes side by side -- the
+#: thin set of the two joined round their ends, or the fit of one grown round the other's end and back
+#: along it -- is the tubes of its legs.  Left out whole, a tube is missing, and a neighbour's end can
+#: veer into its points.
 LEG_RADII = 2.0
 
 
-def _longest_leg(fit: _BranchFit, ends: tuple) -> dict | None:
-    """The estimate (spine, radius, segments) of the longer leg of a folded fit: from ``HOOK_RADII / 2``
-    radii past the point where its tangent has turned by a right angle from the leg's end, to that end;
-    ``None`` if it has no such turn, no leg is LEG_RADII long, or the part cut off would end at a junction
-    (``ends``: there the tubes unite)."""
+def _legs(fit: _BranchFit, branch: SkeletonBranch) -> list:
+    """Skeleton branches along the legs of a folded fit of ``branch``: each from ``HOOK_RADII / 2`` radii
+    past the point where its tangent has turned by a right angle from that leg's end, to that end (which
+    keeps ``branch``'s junction there; the cut is an open end).  Only legs LEG_RADII long whose part cut
+    off ends at no junction (there the tubes unite), the longer first; none if the spine turns round
+    nowhere."""
     if fit.closed:
-        return None
+        return []
     t, pts = sample_arclength(fit.spine, END_SAMPLES)
     s = polyline_arclength(pts)
     tangent = fit.spine.derivative()(t)
@@ -1551,18 +1559,20 @@ def _longest_leg(fit: _BranchFit, ends: tuple) -> dict | None:
     margin, legs = HOOK_RADII / 2 * fit.eq6, []
     for end, turned in ((0, tangent @ tangent[0] < 0), (1, tangent @ tangent[-1] < 0)):
         k = np.flatnonzero(turned)
-        if not len(k) or ends[1 - end] is not None:
+        if not len(k) or branch.ends[1 - end] is not None:
             continue
         a, b = (s[k.max()] + margin, s[-1]) if end == 1 else (0.0, s[k.min()] - margin)
         if b - a >= LEG_RADII * fit.eq6:
-            legs.append((b - a, np.interp([a, b], s, t)))
-    if not legs:
-        return None
-    length, (a, b) = max(legs, key=lambda leg: leg[0])
-    nseg, rseg = (max(1, int(round(n * length / s[-1]))) for n in fit.segments)
-    spine, (radius,), _ = arclength_reparametrize(fit.spine, n_segments=nseg, closed=False, a=a, b=b,
-                                                  extra=[(fit.radius, rseg)])
-    return {"spine": spine, "radius": radius, "segments": (nseg, rseg)}
+            legs.append((b - a, end, *np.interp([a, b], s, t)))
+    out = []
+    for length, end, a, b in sorted(legs, reverse=True):
+        share = length / s[-1]
+        spine, (radius,), _ = arclength_reparametrize(fit.spine, n_segments=fit.segments[0], closed=False, a=a,
+                                                      b=b, extra=[(fit.radius, fit.segments[1])])
+        u, on = sample_arclength(spine, max(MIN_BRANCH_POINTS, int(round(share * len(branch.points)))))
+        ends = (branch.ends[0], None) if end == 0 else (None, branch.ends[1])
+        out.append(SkeletonBranch(on, np.full(len(u), share * branch.weights.sum() / len(u)), radius(u), ends))
+    return out
 
 
 def _judged(fit: _BranchFit, idx: np.ndarray, job: dict) -> tuple[bool, str]:
@@ -1925,7 +1935,7 @@ def _joined_pieces(fits: list, skel: Skeleton, job: dict, client, made: dict,
     # along it: two tubes in line, a stretch apart, are not one.
     def kept(a, ea, b, eb):
         fit = by_first[a]
-        if isinstance(fit, str) or not _spans(fit, fits[a].spine(1.0 - ea), fits[b].spine(1.0 - eb)):
+        if not isinstance(fit, _BranchFit) or not _spans(fit, fits[a].spine(1.0 - ea), fits[b].spine(1.0 - eb)):
             return False
         if _quality(fit)["rms"] > JOINED_RMS_RATIO * max(_quality(fits[a])["rms"], _quality(fits[b])["rms"]):
             return False
@@ -1969,7 +1979,16 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                "refine": refine, "noise": noise, "quantum": quantum, "loose": loose}
         todo = [i for i, f in enumerate(fits) if f is None]
         reason = ""
+        last = round_ == MAX_FIT_ROUNDS - 1  # a branch cut (a part, legs) in the last round could not be fitted
         for i, fit in zip(todo, _fit_all(todo, job, client)):
+            if isinstance(fit, _Folded):
+                if not last:
+                    log.info("branch %d folds (%s): fitted again as %d leg(s)", i, fit.why, len(fit.legs))
+                    skel = replace(skel, branches=[fit.legs[0] if n == i else b for n, b in enumerate(skel.branches)]
+                                   + fit.legs[1:])
+                    fits += [None] * (len(fit.legs) - 1)
+                    continue
+                fit = fit.why
             if isinstance(fit, str):
                 reason, fit = fit, False
             fits[i] = fit
@@ -1992,7 +2011,6 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
         inside = _inside_others(fits, skel)
         were = {i: fits[i] for i in inside}
         rest = [False if k in inside else f for k, f in enumerate(fits)]
-        last = round_ == MAX_FIT_ROUNDS - 1  # a part cut in the last round could not be fitted
         opened = False  # a part left a junction
         for i in inside:
             part = None if i in cut or last else _own_part(rest, skel.branches[i], fits[i].eq6)
@@ -2166,7 +2184,7 @@ def _fitted_about_placed_junctions(fits: list, skel: Skeleton, job: dict, client
                                            "segments": fit.segments})
     job = {**job, "estimates": estimates}
     for i, fit in zip(todo, _fit_all(todo, job, client)):
-        if not isinstance(fit, str):
+        if isinstance(fit, _BranchFit):
             fits[i] = fit
     return skel, fits
 

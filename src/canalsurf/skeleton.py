@@ -64,8 +64,10 @@ END_DIRECTION_RADII = (2.0, 6.0)
 HAIRPIN_LEGS_RADII = 3.0
 #: An open end that stops within this many of its radii of a corner of another branch, where that branch
 #: turns by at least TEE_CORNER degrees, and that goes on straight into one leg of the corner (turning by at
-#: most TEE_STRAIGHT) is the far half of a tee's run, which the thin set broke off at the junction: the
-#: side branch and the near half of the run then make one branch round the corner.  The three meet there.
+#: most TEE_STRAIGHT) in line with it (its end within the larger radius of that leg's line) is the far
+#: half of a tee's run, which the thin set broke off at the junction: the side branch and the near half of
+#: the run then make one branch round the corner.  The three meet there.  An end beside that leg, as far
+#: off its line as the sum of the radii, is another tube touching it.
 BROKEN_TEE_RADII = 2.0
 TEE_CORNER = 45.0
 TEE_STRAIGHT = 30.0
@@ -550,8 +552,11 @@ def _broken_tee(branches: list) -> tuple | None:
         radius = max(radii[k], radii[i])
         before, after = _split(c, v, -1)
         legs = (_inward(before, 1, radius), _inward(after, 0, radius))
-        if _turn(*legs) >= TEE_CORNER and min(_turn(_inward(b, e, radius), leg) for leg in legs) <= TEE_STRAIGHT:
-            return k, e, i, v
+        straight = [leg for leg in legs if _turn(_inward(b, e, radius), leg) <= TEE_STRAIGHT]
+        if _turn(*legs) >= TEE_CORNER and straight:
+            off = b.points[0 if e == 0 else -1] - c.points[v]
+            if np.linalg.norm(off - (off @ straight[0]) * straight[0]) <= radius:
+                return k, e, i, v
     return None
 
 
