@@ -86,6 +86,14 @@ def test_a_network_is_not_refused_for_its_clutter():
     assert network.diagnostics["no_tube_share"] == pytest.approx(0.5, abs=0.05)
 
 
+def test_clutter_whose_fit_folds_is_left_out_not_cut_into_legs():
+    """A fit to the boxes of a floor-clutter scene (seed 200 of docs/networks.md) that folds, and whose
+    points do not lie on it, is no tube: cut into legs, one was written as a pipe of radius 2.1."""
+    truth = make_network("floor-clutter", n=30_000, noise=0.02, rng=200)
+    network = canalsurf.reconstruct(truth.points)
+    assert len(network.branches) == 1 and network.branches[0].mean_radius == pytest.approx(1.0, abs=0.01)
+
+
 def _box_surface(n: int, rng) -> np.ndarray:
     """Points on the surface of the cube [-1, 1]^3 (equal area per face), 1 % noise."""
     face = rng.integers(0, 6, n)

@@ -1519,7 +1519,8 @@ def _fit_one(i: int, job: dict) -> _BranchFit | _Folded | str:
             raise
         return str(exc).split(" — ")[0]
     ok, why = _judged(fit, idx, job)
-    if not ok and job["refine"] and fold(fit.spine, fit.radius, fit.closed):
+    # Not a fit whose points do not lie on it: clutter's fits fold too, and a leg of one may pass.
+    if not ok and job["refine"] and why == fold(fit.spine, fit.radius, fit.closed):
         legs = _legs(fit, estimates.skel.branches[i])
         if legs:
             return _Folded(why, legs)
@@ -1535,12 +1536,12 @@ class _Folded:
     legs: list
 
 
-#: A fit that folds (:func:`canalsurf.quality.fold`) is cut where its spine has turned round, each leg
-#: HOOK_RADII / 2 radii past the turn, and the legs at least LEG_RADII radii long whose part cut off ends
-#: at no junction are fitted again as branches of their own: a hairpin of two pipes side by side -- the
-#: thin set of the two joined round their ends, or the fit of one grown round the other's end and back
-#: along it -- is the tubes of its legs.  Left out whole, a tube is missing, and a neighbour's end can
-#: veer into its points.
+#: A fit that is no tube only as it folds (:func:`canalsurf.quality.fold`; its points lie on it) is cut
+#: where its spine has turned round, each leg HOOK_RADII / 2 radii past the turn, and the legs at least
+#: LEG_RADII radii long whose part cut off ends at no junction are fitted again as branches of their own:
+#: a hairpin of two pipes side by side -- the thin set of the two joined round their ends, or the fit of
+#: one grown round the other's end and back along it -- is the tubes of its legs.  Left out whole, a tube
+#: is missing, and a neighbour's end can veer into its points.
 LEG_RADII = 2.0
 
 
