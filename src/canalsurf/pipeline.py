@@ -1510,7 +1510,7 @@ def _fit_one(i: int, job: dict) -> _BranchFit | _Folded | str:
                 if len(idx) < C.POINTS_PER_SEGMENT:
                     return f"only {len(idx)} points are left once the strays at its ends are cut"
                 fit = _fit_branch(points[idx], guess, kind=job["kind"], refine=True)
-            if job["loose"] is not None and _judged(fit, idx, job)[0]:
+            if job["loose"] is not None and _judged(fit, idx, job)[0][0]:
                 # Judged on the points whose cross-section was found before it takes back the others: a
                 # strip of ground, no tube, would take in more of the ground and could pass for one.
                 fit, idx = _regathered(points, fit, idx, i, estimates, job["loose"], job["kind"])
@@ -1518,9 +1518,10 @@ def _fit_one(i: int, job: dict) -> _BranchFit | _Folded | str:
         if len(estimates.guesses) == 1:
             raise
         return str(exc).split(" — ")[0]
-    ok, why = _judged(fit, idx, job)
-    # Not a fit whose points do not lie on it: clutter's fits fold too, and a leg of one may pass.
-    if not ok and job["refine"] and why == fold(fit.spine, fit.radius, fit.closed):
+    (ok, why), q = _judged(fit, idx, job)
+    # Only where the fold is the first test it fails (its points lie on it): clutter's fits fold too,
+    # and a leg of one may pass.
+    if not ok and job["refine"] and why == q["fold"]:
         legs = _legs(fit, estimates.skel.branches[i])
         if legs:
             return _Folded(why, legs)
@@ -1576,10 +1577,12 @@ def _legs(fit: _BranchFit, branch: SkeletonBranch) -> list:
     return out
 
 
-def _judged(fit: _BranchFit, idx: np.ndarray, job: dict) -> tuple[bool, str]:
-    """Whether a fit to the points ``idx`` is a tube, and if not why (:func:`_is_tube`)."""
+def _judged(fit: _BranchFit, idx: np.ndarray, job: dict) -> tuple[tuple[bool, str], dict]:
+    """Whether a fit to the points ``idx`` is a tube, and if not why (:func:`_is_tube`); and its
+    :func:`_quality`."""
     fit.kappa = job["kappa"][idx]
-    return _is_tube(_quality(fit), job["noise"], job["quantum"])
+    q = _quality(fit)
+    return _is_tube(q, job["noise"], job["quantum"]), q
 
 
 #: Branches fitted at once before the fits are spread over the machine's cores, and the scan's points
