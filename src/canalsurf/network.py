@@ -214,9 +214,13 @@ def classify_points(points: np.ndarray, branches: list, *, cut: list | None = No
         # The spine is within half a sample step of a sample, the surface within the largest radius of
         # the spine: |P - C(t)| - r(t) >= (distance to the nearest sample) - reach.
         reach.append(length / (m - 1) / 2 + float(b.radius(np.linspace(0.0, 1.0, 2 * m)).max()))
-    k = min(CLASSIFY_NEIGHBOURS, sum(len(s) for s in samples))
-    _, idx = cKDTree(np.concatenate(samples)).query(points, k=k, workers=workers(len(points)))
-    candidates = np.concatenate(owner)[idx.reshape(n, -1)]
+    if len(branches) == 1:
+        # Every point's one candidate: a search of the samples would only say so, at a cost.
+        candidates = np.zeros((n, 1), np.intp)
+    else:
+        k = min(CLASSIFY_NEIGHBOURS, sum(len(s) for s in samples))
+        _, idx = cKDTree(np.concatenate(samples)).query(points, k=k, workers=workers(len(points)))
+        candidates = np.concatenate(owner)[idx.reshape(n, -1)]
     best = np.full(n, np.inf)
     distance = np.full(n, np.inf)
     label = np.full(n, -1)
