@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from canalsurf import synth
 from canalsurf.constants import NORMAL_NEIGHBOURS, ORIENT_NEIGHBOURS
-from canalsurf.normals import estimate_normals, facing_inward, orient_normals, surface_noise
+from canalsurf.normals import (NOISE_MIN_POINTS, NOISE_PER_REACH, _quadric_scatter, estimate_normals, facing_inward,
+                               orient_normals, surface_noise)
 
 SEED = 7
 #: Share of estimated normals that must point the same way as the true ones (NOTES: MST orientation
@@ -208,6 +209,40 @@ def test_surface_noise_is_the_noise_along_the_normal(radius, n, sigma):
         plane_scatter = np.sqrt(np.median(np.linalg.eigvalsh(np.einsum("nki,nkj->nij", planes, planes))[:, 0]
                                           / NORMAL_NEIGHBOURS))
         assert plane_scatter > 1.5 * sigma  # what the quadric avoids
+
+
+def _thin_cylinders(radius: float, n: int, sigma: float, rng) -> np.ndarray:
+    """``n`` points on twelve parallel cylinders of a small ``radius``, 1 apart, moved by noise ``sigma``."""
+    points = _noisy_cylinder(radius, n, sigma, rng)
+    return points + np.column_stack([rng.integers(0, 4, n), rng.integers(0, 3, n), np.zeros(n)])
+
+
+def _densest_level_search(points, seeds, k=NORMAL_NEIGHBOURS):
+    """:func:`surface_noise` as its docstring says: from every point, thinned a seeded quarter at a time
+    until the noise read is below NOISE_PER_REACH of the reach."""
+    order = np.random.default_rng(0).permutation(len(points))
+    n = len(points)
+    while True:
+        level = points[order[:n]]
+        reach, nbr = cKDTree(level).query(seeds, k=k)
+        noise = _quadric_scatter(level[nbr], k)
+        if noise <= NOISE_PER_REACH * np.median(reach[:, -1]) or n // 4 < NOISE_MIN_POINTS:
+            return noise
+        n //= 4
+
+
+@pytest.mark.parametrize("points", [_noisy_cylinder(1.0, 200_000, 0.05, np.random.default_rng(5)),
+                                    _thin_cylinders(0.05, 200_000, 0.0005, np.random.default_rng(6)),
+                                    _thin_cylinders(0.01, 200_000, 0.0001, np.random.default_rng(1))],
+                         ids=["noise read in full only where thinned", "thin tubes read as noise where thinned",
+                              "thinned neighbourhoods reach along thin tubes"])
+def test_surface_noise_reads_at_the_level_the_search_from_every_point_would(points):
+    """The search starts where the three sparsest levels foresee (the first case, where they read the same
+    noise) or from every point (the others, where the sparse neighbourhoods take in the thin tubes'
+    curvature, or reach along them and read it the same); either way it ends at the same level as the
+    search from every point."""
+    assert surface_noise(points, points[:2000]) == pytest.approx(_densest_level_search(points, points[:2000]),
+                                                                  rel=1e-9)
 
 
 def test_surface_noise_of_a_noise_free_surface_is_near_zero_and_of_too_few_points_zero():

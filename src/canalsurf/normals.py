@@ -28,6 +28,11 @@ _QUADRIC_TERMS = 6
 NOISE_PER_REACH = 0.1
 #: ... thinning the points no further than this many.
 NOISE_MIN_POINTS = 2_000
+#: A reading this share of the next sparser level's or more reads the noise, not the shapes, there.
+NOISE_STEADY = 0.5
+#: ... where the neighbourhoods' reach shrinks by no more than this factor from that level, as on a surface
+#: (by 2, against 4 along a line).
+NOISE_SHRINK = 2.5
 
 
 def scatter_matrices(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -349,15 +354,37 @@ def surface_noise(points: np.ndarray, seeds: np.ndarray, *, k: int = NORMAL_NEIG
     if len(points) < k or not len(seeds) or k <= _QUADRIC_TERMS:
         return 0.0
     order = np.random.default_rng(rng).permutation(len(points))
-    n = len(points)
-    while True:
+    levels = [len(points)]
+    while levels[-1] // 4 >= NOISE_MIN_POINTS:
+        levels.append(levels[-1] // 4)
+
+    def measure(n):
         level = points[order[:n]] if n < len(points) else points
         # An unbalanced tree builds in half the time; a few thousand queries do not feel the difference.
         reach, nbr = cKDTree(level, balanced_tree=False, compact_nodes=False).query(seeds, k=k, workers=-1)
-        noise = _quadric_scatter(level[nbr], k)
-        if noise <= NOISE_PER_REACH * float(np.median(reach[:, -1])) or n // 4 < NOISE_MIN_POINTS:
+        return _quadric_scatter(level[nbr], k), float(np.median(reach[:, -1]))
+
+    read, start = {}, 0
+    if len(levels) > 3:
+        # A tree of every point of a dense scan costs more than those of all sparser levels together.
+        # Where the three sparsest levels read about the same noise in neighbourhoods that shrink as on a
+        # surface (as 1 / sqrt(n), not 1 / n as along thin tubes they reach beyond), they read the noise in
+        # full, not the shapes (those a denser level reads far less of); the densest level that still
+        # reads it is then foreseen from the densest of the three (``n <= most``: a noise read low
+        # foresees it denser), and the search starts one level denser.
+        read[levels[-1]] = measure(levels[-1])
+        for sparser, n in zip(levels[:-3:-1], levels[-2:-4:-1]):
+            read[n] = measure(n)
+            if read[n][0] < NOISE_STEADY * read[sparser][0] or read[sparser][1] > NOISE_SHRINK * read[n][1]:
+                break
+        else:
+            noise, reach = read[levels[-3]]
+            most = levels[-3] * (NOISE_PER_REACH * reach / max(noise, 1e-300)) ** 2
+            start = max(0, sum(n > most for n in levels) - 1)
+    for n in levels[start:]:
+        noise, reach = read[n] if n in read else measure(n)
+        if noise <= NOISE_PER_REACH * reach or n == levels[-1]:
             return noise
-        n //= 4
 
 
 def _quadric_scatter(patch: np.ndarray, k: int) -> float:
