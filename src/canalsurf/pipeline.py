@@ -218,7 +218,7 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                                timer=timer)
     with timer("normals"):
         noise = _noise(scan, passes, quantum)
-    while True:
+    for again in (automatic and refine, False):
         with timer("skeleton"):
             skel = skeletonize(np.concatenate([s.thin for s in passes]), np.concatenate([s.r_i for s in passes]),
                                spacing=np.concatenate([np.full(len(s.thin), C.ORDER_VOXEL_PER_H * s.p["H"])
@@ -232,8 +232,8 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
             fits, junction_points, left_out = _unfolded(fits, junction_points)
         with timer("residual"):
             branches, summary, beside = _check_and_describe(scan, fits, noise, junction_points, left_out)
-        run = _beside_pass(scan, beside, passes, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
-                           timer=timer) if automatic and refine else None
+        run = _beside_pass(scan, beside, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
+                           timer=timer) if again else None
         if run is None:
             break
         passes = passes + [run]
@@ -288,7 +288,6 @@ class _Pass:
     thin: np.ndarray
     r_i: np.ndarray
     pool: np.ndarray | None = None  # indices of the scan's points the pass worked on (None: all)
-    beside: bool = False  # a pass on the points beside the fitted tubes (:func:`_beside_pass`)
 
     @cached_property
     def skeleton(self) -> Skeleton | None:
@@ -2449,8 +2448,8 @@ def _beside(points: np.ndarray, label: np.ndarray, distance: np.ndarray, branche
 BESIDE_SHARE = 0.01
 
 
-def _beside_pass(scan: _Scan, beside: np.ndarray, passes: list, k, given: dict, *, kind: str,
-                 neighbours: str, quantum: float, timer: _Timer) -> _Pass | None:
+def _beside_pass(scan: _Scan, beside: np.ndarray, k, given: dict, *, kind: str, neighbours: str,
+                 quantum: float, timer: _Timer) -> _Pass | None:
     """A further pass of the paper's stages on the points ``beside`` the fitted tubes
     (:func:`_beside`), or None where they are too few or no tube is among them.
 
@@ -2459,18 +2458,17 @@ def _beside_pass(scan: _Scan, beside: np.ndarray, passes: list, k, given: dict, 
     round, and no finer pass sees it.  The fits know the surfaces to the noise; what they leave beside
     them is drawn again, once, on its own.
     """
-    n_measured = len(scan.all_pts) if scan.draw is None else min(len(scan.all_pts), C.MAX_RESIDUAL_POINTS)
-    if any(run.beside for run in passes) or len(beside) < max(BESIDE_SHARE * n_measured, MIN_BRANCH_POINTS):
+    measured = min(len(scan.all_pts), C.MAX_RESIDUAL_POINTS)
+    if len(beside) < max(BESIDE_SHARE * measured, MIN_BRANCH_POINTS):
         return None
-    sub = _Scan(scan.origin, scan.scale, scan.all_pts[beside],
-                None if scan.all_normals is None else scan.all_normals[beside], None, None, None)
+    pts, nrm = scan.all_pts[beside], None if scan.all_normals is None else scan.all_normals[beside]
     try:
-        run = _paper_stages(_subset(sub, len(beside)), k, given, kind=kind, stop="auto", neighbours=neighbours,
-                            quantum=quantum, timer=timer, fallback=False)
+        run = _paper_stages(_Scan(scan.origin, scan.scale, pts, nrm, None, pts, nrm), k, given, kind=kind,
+                            stop="auto", neighbours=neighbours, quantum=quantum, timer=timer, fallback=False)
     except ReconstructionError as exc:
         log.info("no tube among the %d points beside the tubes fitted: %s", len(beside), exc)
         return None
-    run = replace(_trimmed(run), pool=beside, beside=True)
+    run = replace(_trimmed(run), pool=beside)
     if len(run.thin) < MIN_BRANCH_POINTS:
         return None
     log.info("a further pass on the %d points beside the tubes fitted: r0 = %.4g, %d thin points",
