@@ -74,13 +74,9 @@ ASSIGN_END_RADII = 1.0
 #: A fitted open end that grew by more than this many radii past the estimate its points were taken
 #: about (which reach ASSIGN_END_RADII past it) may go on: its points are taken again about the fit and
 #: it is fitted again, at most MAX_GROW_ROUNDS times (a thin set that stops radii short of a tube's end
-#: would otherwise cut the model short there, with nothing to show it).  After STEADY_GROW_ROUNDS rounds
-#: the points are taken twice as far past the end each round: a thin set that stops many radii short (a
-#: thin pipe's, tangled where it touches its neighbours) grows to the tube's end in a few more fits, not
-#: one per radius; the refinement's end placement still stops it where its points end.
+#: would otherwise cut the model short there, with nothing to show it).
 GROW_RADII = 0.5
-STEADY_GROW_ROUNDS = 6
-MAX_GROW_ROUNDS = 12
+MAX_GROW_ROUNDS = 6
 #: Rounds of "fit, drop the branches that are no tube, join the branches they separated".
 MAX_FIT_ROUNDS = 3
 
@@ -812,7 +808,7 @@ def _first_guess(branch: SkeletonBranch) -> dict:
     spine = pspline_fit(u, branch.points, n_segments=nseg, closed=branch.closed, weights=fit_w)
     radius = pspline_fit(u, r_v, n_segments=rseg, closed=branch.closed, weights=fit_w)
     return {"spine": spine, "radius": radius, "eq6": r_b, "segments": (nseg, rseg), "closed": branch.closed,
-            "u": u, "r_v": r_v, "w": w, "past": ASSIGN_END_RADII}
+            "u": u, "r_v": r_v, "w": w}
 
 
 #: The final fit takes at least MAX_FIT_POINTS of the scan's points, and this many per branch of the
@@ -847,13 +843,12 @@ def _fit_points(scan: _Scan, passes: list, n_branches: int) -> tuple[np.ndarray,
 
 
 def _stand_in(g: dict, branch: SkeletonBranch, i: int) -> CanalModel:
-    """A first tube estimate as a model, continued ``g["past"]`` radii past its open ends
-    (``ASSIGN_END_RADII``, farther as a fit grows: :func:`_grow`): the spine straight on, the radius held
-    at its end value (its slope there is the thin set's end, where the r_i scatter most: continued, it
-    can reach several radii)."""
+    """A first tube estimate as a model, continued ``ASSIGN_END_RADII`` radii past its open ends: the
+    spine straight on, the radius held at its end value (its slope there is the thin set's end, where
+    the r_i scatter most: continued, it can reach several radii)."""
     spine, radius = g["spine"], g["radius"]
     if not g["closed"]:
-        ext = g["past"] * g["eq6"] / curve_length(spine)
+        ext = ASSIGN_END_RADII * g["eq6"] / curve_length(spine)
         a, b = (0.0 if branch.ends[0] is not None else -ext), (1.0 if branch.ends[1] is not None else 1 + ext)
         nseg, rseg = g["segments"]
         spine, (radius,), _ = arclength_reparametrize(extended(spine), n_segments=nseg + 2, closed=False, a=a, b=b,
@@ -1252,12 +1247,12 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
           fittable: _Fittable, kind: str) -> tuple[_BranchFit, np.ndarray]:
     """Branch ``i``'s fit and the indices of its points (``idx``), grown where an open end grew towards
     the edge of its points: the points are assigned again about the fit (continued ASSIGN_END_RADII past
-    its ends, like the first estimate; twice as far each round after STEADY_GROW_ROUNDS) and the branch
-    fitted again, until no end grows by more than ``GROW_RADII`` or ``MAX_GROW_ROUNDS``.  The
-    refinement's own end placement stops it at a gap in the points, as before.  A round whose fit fails keeps the fit before it: an end grown into clutter (a
+    its ends, like the first estimate) and the branch fitted again, until no end grows by more than
+    ``GROW_RADII`` or ``MAX_GROW_ROUNDS``.  The refinement's own end placement stops it at a gap in the
+    points, as before.  A round whose fit fails keeps the fit before it: an end grown into clutter (a
     tree's stem into the flare under its limbs) loses what it grew, not the tube it grew from."""
     free = [e for e in (0, 1) if estimates.skel.branches[i].ends[e] is None and not estimates.guesses[i]["closed"]]
-    for round_ in range(MAX_GROW_ROUNDS):
+    for _ in range(MAX_GROW_ROUNDS):
         g = estimates.guesses[i]
         # Outward along the fit, not the estimate: an estimate whose thin set strays sideways at its end
         # hooks there, and the fit's end, on past it, would not count as grown along the hook.
@@ -1267,9 +1262,7 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
             break
         length, grown = curve_length(g["spine"]), curve_length(fit.spine)
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
-        past = ASSIGN_END_RADII * 2.0 ** max(0, round_ + 1 - STEADY_GROW_ROUNDS)
-        estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg),
-                                           "past": past})
+        estimates = estimates.replaced(i, {**g, "spine": fit.spine, "radius": fit.radius, "segments": (nseg, rseg)})
         grown_idx = _assign(points, estimates, fittable, i)
         try:
             fit = _fit_branch(points[grown_idx], estimates.guesses[i], kind=kind, refine=True, was=fit.kind)
