@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.interpolate import BSpline
@@ -319,3 +321,13 @@ def test_robust_sigma(rng):
     assert robust_sigma(x) == pytest.approx(0.2, rel=0.03)
     x[:2000] = 50.0  # 10 % gross outliers barely move it
     assert robust_sigma(x) == pytest.approx(0.2, rel=0.2)
+
+
+def test_gcv_scores_no_weight_that_leaves_no_room_for_the_noise_and_does_not_warn():
+    # Three unknowns fitted exactly by one point's weight: every weight leaves 1 - 3 GCV_GAMMA < 0 to the
+    # noise, and the fit's residual is 0.  Scored anyway, 0 / 0 warned on the console of a good run.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lam = _gcv_smoothing(np.eye(3), np.array([1.0, 0.0, 0.0]), np.zeros((3, 3)), np.zeros(3), 1.0, 1.0,
+                             stiff=np.zeros((3, 3)), floor=2.0)
+    assert lam == 2.0

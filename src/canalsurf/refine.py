@@ -585,10 +585,12 @@ def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, *, stiff, floor: float, solver: Blo
         dof = solver.trace_product(JtWJ)
     # dof = tr(A^-1 JtWJ); a weight that leaves too few degrees of freedom to the noise is not scored.
     fit_rss = rss + 2 * steps @ g + np.einsum("ij,ij->i", steps @ JtWJ, steps)
-    # Where dof comes within 1e-150 of nw the square underflows: that weight scores inf, as it should.
-    with np.errstate(divide="ignore"):
-        gcv = np.where(GCV_GAMMA * dof < nw,
-                       nw * np.maximum(fit_rss, 0.0) / np.maximum(nw - GCV_GAMMA * dof, 1e-300) ** 2, np.inf)
+    # A weight that leaves no room for the noise is not scored (inf).  Computed there anyway, an exact
+    # fit divided 0 by 0 and warned (the NaN was then masked), on the console of a run that was fine.
+    room = nw - GCV_GAMMA * dof
+    scored = room > 1e-150
+    gcv = np.full(len(lams), np.inf)
+    gcv[scored] = nw * np.maximum(fit_rss[scored], 0.0) / room[scored] ** 2
     return float(lams[int(np.argmin(gcv))]) if np.isfinite(gcv).any() else float(floor)
 
 
