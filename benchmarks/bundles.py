@@ -54,15 +54,14 @@ def check(seed: int) -> dict:
     try:
         network = canalsurf.reconstruct(truth.points)
     except canalsurf.ReconstructionError:
-        return {"pipes": len(truth.branches), "refused": 1, "tubes": len(truth.branches), "found": 0,
-                "written": 0, "junctions": 0, "outside": 0, "missing": [], "spine": [],
-                "s": time.perf_counter() - start}
+        return {"tubes": len(truth.branches), "refused": 1, "found": 0, "written": 0, "junctions": 0,
+                "outside": 0, "missing": [], "spine": [], "s": time.perf_counter() - start}
     seconds = time.perf_counter() - start
     compared = compare_network(network, truth)["branches"]
     found = [b for b in compared if b["covered"] >= FOUND_COVERED]
     errors = [e for e in model_error(network, truth.branches, truth.junctions) if np.isfinite(e["spine_mean"])]
     missing = [(seed, b["radius"], b["covered"]) for b in compared if b["covered"] < FOUND_COVERED]
-    return {"pipes": len(truth.branches), "refused": 0, "tubes": len(truth.branches), "found": len(found),
+    return {"tubes": len(truth.branches), "refused": 0, "found": len(found),
             "written": len(network.branches), "junctions": len(network.junctions),
             "outside": sum(outside_claim(e) for e in errors),
             "missing": missing, "spine": [b["spine_mean"] for b in found], "s": seconds}
@@ -89,7 +88,7 @@ def main(argv=None) -> int:
               f"{r['outside']} outside its claim, "
               f"{r['s']:.1f} s", file=sys.stderr, flush=True)
     lines = [HEAD, "|" + "---|" * (HEAD.count("|") - 1)]
-    lines += [row(k, [r for r in results if r["pipes"] == k]) for k in sorted({r["pipes"] for r in results})]
+    lines += [row(k, [r for r in results if r["tubes"] == k]) for k in sorted({r["tubes"] for r in results})]
     lines.append(row("all", results))
     missing = [f"- seed {s}: a pipe of radius {r:.2f}, {100 * c:.0f} % of it covered"
                for r_ in results for s, r, c in r_["missing"]]
