@@ -583,11 +583,10 @@ def _gcv_smoothing(JtWJ, g, Pen, x, rss, nw, *, stiff, floor: float, solver: Blo
         solver.factor(JtWJ + stiff, Pen, lams)
         steps = -solver.solve(rhs)
         dof = solver.trace_product(JtWJ)
-    # dof = tr(A^-1 JtWJ); a weight that leaves too few degrees of freedom to the noise is not scored.
+    # dof = tr(A^-1 JtWJ).  A weight that leaves no degrees of freedom to the noise (or so few that their
+    # square underflows) is not scored: computing its score anyway divided 0 by 0 where the fit was exact,
+    # and warned on the console of a good run.
     fit_rss = rss + 2 * steps @ g + np.einsum("ij,ij->i", steps @ JtWJ, steps)
-    # A weight that leaves no room for the noise (none whose square is a normal number) is not scored:
-    # inf.  Computed there anyway, an exact fit divided 0 by 0 and warned (the NaN was then masked), on
-    # the console of a run that was fine.
     room = nw - GCV_GAMMA * dof
     scored = room > 1e-150
     gcv = np.full(len(lams), np.inf)
