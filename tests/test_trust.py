@@ -201,3 +201,22 @@ def test_a_thin_pipe_squeezed_between_two_wider_ones_it_touches_is_found(n, nois
     for e in errors:
         claim = CLAIMS[e["quality"]]
         assert e["spine_mean"] <= claim["spine"] and e["radius_mean"] <= claim["radius"], e
+
+
+@pytest.mark.parametrize("seed", [7, 106])
+def test_pipes_whose_thin_sets_meet_where_they_touch_make_no_junction(seed):
+    # Random bundles of benchmarks/bundles.py (drawn as there): where two touching pipes' thin sets met,
+    # the skeleton read a junction, too near the pipes' ends to be parted from afar; the wider pipe's fit
+    # stopped short of its end, the thinner one was cut in two, and the junction drew a tee between them,
+    # every branch within its claim away from it.  Their fits run parallel, a radius sum apart.
+    rng = np.random.default_rng(seed)
+    radii = tuple(rng.uniform(0.3, 2.0, int(rng.integers(2, 6))))
+    truth = make_network("bundle", n=int(rng.integers(15_000, 40_001)), noise=rng.uniform(0.005, 0.03), rng=rng,
+                         radii=radii, gap=0.0)
+    network, errors = errors_of(truth)
+    assert network is not None and not network.junctions
+    found = compare_network(network, truth)
+    assert found["one_to_one"] and min(b["covered"] for b in found["branches"]) >= 0.95, found["branches"]
+    for e in errors:
+        claim = CLAIMS[e["quality"]]
+        assert e["spine_mean"] <= claim["spine"] and e["radius_mean"] <= claim["radius"], e

@@ -13,6 +13,7 @@ import functools
 import logging
 import math
 import time
+from itertools import combinations
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -1901,6 +1902,45 @@ def _unmet_ends(fits: list, skel: Skeleton) -> list:
     return unmet
 
 
+#: Two tubes that touch can share their thin set where they touch, which the skeleton reads as a junction
+#: between them; seen from far enough (``skeleton.BRIDGE_WINDOW_RADII``) the skeleton parts them, but a
+#: tube only a few radii long gives no such view.  Their fits do: two fitted ends at one junction that
+#: run parallel (within SIDE_BY_SIDE_TURN degrees, either way) and whose lines each pass the other's end
+#: farther off than the wider radius are tubes side by side, not branches that meet.
+SIDE_BY_SIDE_TURN = 15.0
+
+
+def _off_line(p: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> float:
+    v = p - origin
+    return float(np.linalg.norm(v - (v @ direction) * direction))
+
+
+def _side_by_side(fits: list, skel: Skeleton) -> tuple[list, list]:
+    """Branch ends (``(branch, end)``) at a false junction between fitted tubes side by side (see
+    SIDE_BY_SIDE_TURN): the ends whose line misses the junction by more than their radius (they were
+    linked to it), and, where two ends are left there in line (a tube the false junction cut in two), those
+    two, for :func:`_joined_pieces` to join.  Returns the ends linked and the ends left in line."""
+    parallel = np.cos(np.radians(SIDE_BY_SIDE_TURN))
+    linked, pieces = [], []
+    for j, ends in _ends_at_junctions([b.ends for b in skel.branches]).items():
+        ends = [(i, e) for i, e in ends if fits[i] and not fits[i].closed]
+        frames = {m: (*_end_frame(fits[m[0]].spine, m[1]), fits[m[0]].eq6) for m in ends}
+        here = set()
+        for a, b in combinations(ends, 2):
+            (pa, da, ra), (pb, db, rb) = frames[a], frames[b]
+            wider = max(ra, rb)
+            if (a[0] != b[0] and abs(da @ db) >= parallel
+                    and min(_off_line(pb, pa, da), _off_line(pa, pb, db)) > wider):
+                here |= {m for m in (a, b) if _off_line(skel.junctions[j], *frames[m][:2]) > frames[m][2]}
+        linked += sorted(here)
+        left = [m for m in ends if m not in here]
+        if here and len(left) == 2:
+            (pa, da, ra), (pb, db, rb) = frames[left[0]], frames[left[1]]
+            if da @ db <= -parallel and _off_line(pb, pa, da) <= max(ra, rb):
+                pieces += left
+    return linked, pieces
+
+
 def _spans(fit: _BranchFit, first: np.ndarray, last: np.ndarray) -> bool:
     """Whether a fit of two joined pieces reaches the far ends ``first`` and ``last`` of both (passes
     within END_TRIM_RADII radii of them): where the points between the pieces are missing (taken by a
@@ -2007,6 +2047,17 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
             if unmet:
                 log.info("%d branch ends do not meet their junction: opened", len(unmet))
                 skel = with_ends_opened(skel, unmet)
+            linked, pieces = _side_by_side(fits, skel)
+            if linked:
+                log.info("%d branch ends at a junction between tubes side by side: opened", len(linked))
+                skel = with_ends_opened(skel, linked + pieces)
+                if not last:
+                    # Each fit stopped where the junction's reach began: fitted again from it, its open end
+                    # grows into its own tube's points there.
+                    for i in sorted({i for i, _ in linked}):
+                        skel = replace(skel, branches=[_as_branch(fits[i].spine, fits[i].radius, b) if n == i else b
+                                                       for n, b in enumerate(skel.branches)])
+                        fits[i] = None
             # A tube in three pieces or more is joined a pair at a time.  A pair refused is not tried
             # again in this round: its pieces' fits are unchanged, and so would its joined fit be, unless
             # a neighbour joined since took some of its points.  (After branches are dropped, the next
