@@ -138,10 +138,15 @@ def test_a_further_pass_that_resolves_no_tube_leaves_the_first_whole():
     # The trust benchmark's trunk of seed 34: the first pass's own skeleton explains almost none of its
     # curved points (a flared trunk on the ground), the further pass none of its own.  Had the first been
     # trimmed to what it explains, as under a further pass that resolves tubes, no tube would be left.
-    network, errors = errors_of(random_case("trunk", 34))
+    # Its fit, from a short stretch of thin set, grew on to the trunk's top once the network was settled
+    # (it stopped a seventh of the way up, graded good); the pass beside that fit found no network, and
+    # must leave the one without it.
+    case = random_case("trunk", 34)
+    network, errors = errors_of(case)
     assert network is not None and len(network.branches) == 1
     (e,) = errors
     assert e["quality"] == "good" and e["spine_mean"] <= CLAIMS["good"]["spine"], e
+    assert curve_length(network.spine) >= 0.95 * curve_length(case.spine)
 
 
 def test_the_crease_where_two_wide_pipes_touch_is_no_tube():

@@ -75,9 +75,11 @@ ASSIGN_END_RADII = 1.0
 #: A fitted open end that grew by more than this many radii past the estimate its points were taken
 #: about (which reach ASSIGN_END_RADII past it) may go on: its points are taken again about the fit and
 #: it is fitted again, at most MAX_GROW_ROUNDS times (a thin set that stops radii short of a tube's end
-#: would otherwise cut the model short there, with nothing to show it).
+#: would otherwise cut the model short there, with nothing to show it).  An end still growing then grows
+#: on once the network's branches are settled, at most GROW_ON_FITS more times (:func:`_grown_on`).
 GROW_RADII = 0.5
 MAX_GROW_ROUNDS = 6
+GROW_ON_FITS = 3
 #: Rounds of "fit, drop the branches that are no tube, join the branches they separated".
 MAX_FIT_ROUNDS = 3
 
@@ -127,6 +129,7 @@ class _BranchFit:
     t: np.ndarray
     points: np.ndarray
     kappa: np.ndarray | None = None
+    growing: bool = False  # an open end still grew in the last of MAX_GROW_ROUNDS (see _grown_on)
 
 
 def _segments(length: float, spacing: float, n_points: int) -> int:
@@ -219,25 +222,18 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
                                timer=timer)
     with timer("normals"):
         noise = _noise(scan, passes, quantum)
-    for again in (automatic and refine, False):
-        with timer("skeleton"):
-            skel = skeletonize(np.concatenate([s.thin for s in passes]), np.concatenate([s.r_i for s in passes]),
-                               spacing=np.concatenate([np.full(len(s.thin), C.ORDER_VOXEL_PER_H * s.p["H"])
-                                                       for s in passes]))
-        fit_pts, support = _fit_points(scan, passes, len(skel.branches))
-        with timer("fit"):
-            skel, fits = _fit_network(fit_pts, skel, kind=kind, refine=refine, noise=noise, quantum=quantum,
-                                      client=client, **support)
-        with timer("junctions"):
-            fits, junction_points = _join_at_junctions(fits, skel)
-            fits, junction_points, left_out = _unfolded(fits, junction_points)
-        with timer("residual"):
-            branches, summary, beside = _check_and_describe(scan, fits, noise, junction_points, left_out)
-        run = _beside_pass(scan, beside, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
-                           timer=timer) if again else None
-        if run is None:
-            break
-        passes = passes + [run]
+    built = _built(scan, passes, kind=kind, refine=refine, noise=noise, quantum=quantum, client=client, timer=timer)
+    run = _beside_pass(scan, built.beside, k, given, kind=kind, neighbours=neighbours, quantum=quantum,
+                       timer=timer) if automatic and refine else None
+    if run is not None:
+        try:
+            built = _built(scan, passes + [run], kind=kind, refine=refine, noise=noise, quantum=quantum,
+                           client=client, timer=timer)
+            passes = passes + [run]
+        except ReconstructionError as exc:
+            log.info("with the points beside the tubes, no network is found (%s): the one without is kept", exc)
+    branches, summary, fits, junction_points, fit_pts = (built.branches, built.summary, built.fits,
+                                                          built.junction_points, built.fit_pts)
     network = _to_input_units(branches, junction_points, fits, scan)
     network.parameters = _reported_parameters(first.p, scan.scale, k=k, r0=first.r0, stop=stop,
                                               neighbours=neighbours, refine=refine)
@@ -265,6 +261,38 @@ def reconstruct(points, *, normals=None, kind: str = "auto", R: float | None = N
 
 # --------------------------------------------------------------------------------------------------
 # the paper's stages, at one scale or several
+
+
+@dataclass
+class _Built:
+    """A network built from the passes' thin sets: its fits and junctions (normalised), its branches
+    described, the summary of the scan's checks, the points fitted, and the points beside its tubes."""
+
+    fits: list
+    junction_points: np.ndarray
+    branches: list
+    summary: dict
+    fit_pts: np.ndarray
+    beside: np.ndarray
+
+
+def _built(scan: _Scan, passes: list, *, kind: str, refine: bool, noise: float, quantum: float, client,
+           timer: _Timer) -> _Built:
+    """Skeleton, fits, junctions and checks of the passes' thin sets (the stages after the paper's)."""
+    with timer("skeleton"):
+        skel = skeletonize(np.concatenate([s.thin for s in passes]), np.concatenate([s.r_i for s in passes]),
+                           spacing=np.concatenate([np.full(len(s.thin), C.ORDER_VOXEL_PER_H * s.p["H"])
+                                                   for s in passes]))
+    fit_pts, support = _fit_points(scan, passes, len(skel.branches))
+    with timer("fit"):
+        skel, fits = _fit_network(fit_pts, skel, kind=kind, refine=refine, noise=noise, quantum=quantum,
+                                  client=client, **support)
+    with timer("junctions"):
+        fits, junction_points = _join_at_junctions(fits, skel)
+        fits, junction_points, left_out = _unfolded(fits, junction_points)
+    with timer("residual"):
+        branches, summary, beside = _check_and_describe(scan, fits, noise, junction_points, left_out)
+    return _Built(fits, junction_points, branches, summary, fit_pts, beside)
 
 
 @dataclass
@@ -1253,13 +1281,16 @@ def _grow(points: np.ndarray, fit: _BranchFit, idx: np.ndarray, i: int, estimate
     points, as before.  A round whose fit fails keeps the fit before it: an end grown into clutter (a
     tree's stem into the flare under its limbs) loses what it grew, not the tube it grew from."""
     free = [e for e in (0, 1) if estimates.skel.branches[i].ends[e] is None and not estimates.guesses[i]["closed"]]
-    for _ in range(MAX_GROW_ROUNDS):
+    for round_ in range(MAX_GROW_ROUNDS + 1):
         g = estimates.guesses[i]
         # Outward along the fit, not the estimate: an estimate whose thin set strays sideways at its end
         # hooks there, and the fit's end, on past it, would not count as grown along the hook.
         tangent = fit.spine.derivative()(np.array([0.0, 1.0]))
         outward = tangent / np.linalg.norm(tangent, axis=1, keepdims=True) * np.array([[-1.0], [1.0]])
         if not any((fit.spine(float(e)) - g["spine"](float(e))) @ outward[e] > GROW_RADII * g["eq6"] for e in free):
+            break
+        if round_ == MAX_GROW_ROUNDS:
+            fit.growing = True
             break
         length, grown = curve_length(g["spine"]), curve_length(fit.spine)
         nseg, rseg = (max(n, int(round(n * grown / length))) for n in g["segments"])
@@ -2116,6 +2147,7 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
         if any(f is None or f is False for f in fits):
             raise ReconstructionError("the branches of the network could not be fitted — the input is not a tube")
     if refine:
+        skel, fits = _grown_on(fits, skel, job, client, made)
         skel, fits = _fitted_about_placed_junctions(fits, skel, job, client, made)
         fits = _clear_of_contacts(fits, skel)
     for fit, branch in zip(fits, skel.branches):
@@ -2210,6 +2242,27 @@ def _near_pairs(fits: list, cuts: list) -> dict:
 #: radius there from where the skeleton put it moves the points its branches leave out with it: they are
 #: fitted again.
 REFIT_JUNCTION_RADII = 0.25
+
+
+def _grown_on(fits: list, skel: Skeleton, job: dict, client, made: dict):
+    """The skeleton and fits with each branch whose open end still grew after MAX_GROW_ROUNDS (its thin set
+    stopped many radii short of its tube's end: a thin pipe's, tangled where it touches wider ones) fitted
+    again from its fit, to grow on, at most GROW_ON_FITS times.  Done once the network's branches are
+    settled: which branches are kept and joined must not hang on how far an end has grown yet.  A fit that
+    fails keeps the fit before it."""
+    for _ in range(GROW_ON_FITS):
+        todo = [i for i, f in enumerate(fits) if f.growing]
+        if not todo:
+            break
+        log.info("%d branches still grow at an open end: fitted again from their fits", len(todo))
+        skel = replace(skel, branches=[_as_branch(fits[i].spine, fits[i].radius, b) if i in todo else b
+                                       for i, b in enumerate(skel.branches)])
+        job = {**job, "estimates": _Estimates(skel, made)}
+        for i, fit in zip(todo, _fit_all(todo, job, client)):
+            fits[i] = fit if isinstance(fit, _BranchFit) else replace(fits[i], growing=False)
+    for fit in fits:
+        fit.growing = False
+    return skel, fits
 
 
 def _fitted_about_placed_junctions(fits: list, skel: Skeleton, job: dict, client, made: dict):
