@@ -13,10 +13,10 @@ import functools
 import logging
 import math
 import time
-from itertools import combinations
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import cached_property
+from itertools import combinations
 
 import numpy as np
 from scipy.interpolate import BSpline
@@ -2085,10 +2085,10 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                 if not last:
                     # Each fit stopped where the junction's reach began: fitted again from it, its open end
                     # grows into its own tube's points there.
-                    for i in sorted({i for i, _ in linked}):
-                        skel = replace(skel, branches=[_as_branch(fits[i].spine, fits[i].radius, b) if n == i else b
-                                                       for n, b in enumerate(skel.branches)])
-                        fits[i] = None
+                    redo = {i for i, _ in linked}
+                    skel = replace(skel, branches=[_as_branch(fits[n].spine, fits[n].radius, b) if n in redo else b
+                                                   for n, b in enumerate(skel.branches)])
+                    fits = [None if n in redo else f for n, f in enumerate(fits)]
             # A tube in three pieces or more is joined a pair at a time.  A pair refused is not tried
             # again in this round: its pieces' fits are unchanged, and so would its joined fit be, unless
             # a neighbour joined since took some of its points.  (After branches are dropped, the next
