@@ -291,7 +291,12 @@ def _built(scan: _Scan, passes: list, *, kind: str, refine: bool, noise: float, 
         fits, junction_points = _join_at_junctions(fits, skel)
         fits, junction_points, left_out = _unfolded(fits, junction_points)
     with timer("residual"):
-        branches, summary, beside = _check_and_describe(scan, fits, noise, junction_points, left_out)
+        branches, summary, on, beside = _check_and_describe(scan, fits, noise, junction_points, left_out)
+        whys = _surface_goes_on(scan, passes[0], fits, branches, on, beside)
+        if any(whys):
+            fits, junction_points, more = _without(fits, junction_points, whys)
+            left_out = [*left_out, *more]
+            branches, summary, on, beside = _check_and_describe(scan, fits, noise, junction_points, left_out)
     return _Built(fits, junction_points, branches, summary, fit_pts, beside)
 
 
@@ -2420,21 +2425,24 @@ def _unfolded(fits: list, junction_points: np.ndarray) -> tuple[list, np.ndarray
     continued into a junction that lies behind its end can fold.  A scene keeps its other tubes; a
     scan whose every branch is left out is refused.
     """
-    kept, left_out = [], []
     near = _near_pairs(fits, [outlier_cut(f.residual, f.eq6) if len(f.residual) else 0.0 for f in fits])
-    for i, (fit, junctions) in enumerate(zip(fits, _junctions_met(fits, junction_points))):
-        why = (fold(fit.spine, fit.radius, fit.closed, junctions=junctions)
-               or _crease(fit, [fits[j] for j in near.get(i, ())]))
-        if why:
-            left_out.append(why)
-        else:
-            kept.append(fit)
+    whys = [fold(fit.spine, fit.radius, fit.closed, junctions=junctions)
+            or _crease(fit, [fits[j] for j in near.get(i, ())])
+            for i, (fit, junctions) in enumerate(zip(fits, _junctions_met(fits, junction_points)))]
+    return _without(fits, junction_points, whys)
+
+
+def _without(fits: list, junction_points: np.ndarray, whys: list) -> tuple[list, np.ndarray, list]:
+    """The fits less those with a reason (``whys``, ``""`` for none) to be left out, the junctions
+    renumbered (one left with one branch end becomes an open end, with none it goes), and the reasons;
+    a scan whose every branch is left out is refused."""
+    kept = [fit for fit, why in zip(fits, whys) if not why]
+    left_out = [why for why in whys if why]
     if not kept:
         raise ReconstructionError(f"{left_out[0]} — the model cannot be trusted; crop the scan to fewer tubes, "
                                   "or report it with the input")
     if left_out:
-        log.info("%d of %d branches fold once joined at their junctions, or lie in a crease (left out): %s",
-                 len(left_out), len(fits), left_out[0])
+        log.info("%d of %d branches are left out once fitted: %s", len(left_out), len(fits), left_out[0])
         meeting = np.bincount([j for f in kept for j in f.ends if j is not None], minlength=len(junction_points))
         used = np.flatnonzero(meeting >= 2)
         renumber = {int(j): n for n, j in enumerate(used)}
@@ -2486,7 +2494,8 @@ def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: 
                         left_out: list = ()):
     """Per-branch diagnostics and the scan's: which points lie on a tube, how well, how seen, and the
     quality each can be trusted with (:mod:`canalsurf.quality`); ``left_out`` says why tubes found were
-    left out of the model."""
+    left out of the model.  Also, of the sample of the scan's points measured, how many lie on each
+    branch, and which (indices into the scan) lie beside a branch's surface (:func:`_beside`)."""
     branches = []
     inside = inside_others([(f.spine, f.radius) for f in fits], _junctions_met(fits, junction_points))
     for i, fit in enumerate(fits):
@@ -2528,7 +2537,8 @@ def _check_and_describe(scan: _Scan, fits: list, noise: float, junction_points: 
         "angular_coverage": float(np.nanmedian(coverage)) if np.isfinite(coverage).any() else float("nan"),
     }
     summary["one_sided"] = bool(summary["angular_coverage"] < C.ONE_SIDED_DEGREES)
-    return branches, summary, index[_beside(measured, label, distance, branches)]
+    return branches, summary, np.bincount(label[on], minlength=len(branches)), \
+        index[_beside(measured, label, distance, branches)]
 
 
 def _beside(points: np.ndarray, label: np.ndarray, distance: np.ndarray, branches: list) -> np.ndarray:
@@ -2543,6 +2553,55 @@ def _beside(points: np.ndarray, label: np.ndarray, distance: np.ndarray, branche
         nearest, d = classify_points(points[near], branches, cut=[np.inf] * len(branches))
         near = near[np.abs(d) < band * mean_r[nearest]]
     return near
+
+
+#: A branch seen from one side (``C.ONE_SIDED_DEGREES``) whose surface goes on past the arc its points
+#: cover, off the tube, is no tube: an oval duct or a flattened hose, fitted as the round tube of its
+#: tighter curved side.  Its points on no tube that lie beside it (:func:`_beside`) and curve (no floor or
+#: wall it lies against: those are flat) are then at least CONTINUED_SHARE of those on it, and widen the
+#: arc by CONTINUED_DEGREES or more; a one-sided scan's surface stops at the arc's edges (the points beside
+#: a thin pole on a coarse grid lie within them), and a floor under a pipe goes on past them flat
+#: (``tests/test_trust.py``: ovals of semi-axes 1 and 0.8, 1 and 0.7; a pipe against a floor, a wall).
+CONTINUED_SHARE = 0.1
+CONTINUED_DEGREES = 15.0
+
+
+def _surface_goes_on(scan: _Scan, first: _Pass, fits: list, branches: list, on: np.ndarray,
+                     beside: np.ndarray) -> list:
+    """Why each branch is no tube as its surface goes on past its arc (CONTINUED_SHARE), or ``""``.
+    ``on`` counts the points on each branch and ``beside`` indexes the scan's points beside them, of the
+    same sample (:func:`_check_and_describe`); whether each curves is read at its nearest point of the
+    ``first`` pass."""
+    whys = [""] * len(fits)
+    if not len(beside):
+        return whys
+    pts = scan.all_pts[beside]
+    nearest, _ = classify_points(pts, branches, cut=[np.inf] * len(branches))
+    counts = np.bincount(nearest, minlength=len(fits))
+    todo = [i for i, b in enumerate(branches)
+            if b.diagnostics["one_sided"] and counts[i] >= max(CONTINUED_SHARE * on[i], MIN_BRANCH_POINTS)]
+    if not todo:
+        return whys
+    curved = np.zeros(len(first.scan.pts), bool)
+    curved[first.curved] = True
+    curved = curved[cKDTree(first.scan.pts).query(pts, workers=-1)[1]]
+    for i in todo:
+        fit = fits[i]
+        mine = pts[(nearest == i) & curved]
+        t, _ = footpoints(mine, fit.spine, fit.radius, closed=fit.closed)
+        if not fit.closed:
+            mine, t = mine[(t > 0.0) & (t < 1.0)], t[(t > 0.0) & (t < 1.0)]
+        if len(mine) < max(CONTINUED_SHARE * on[i], MIN_BRANCH_POINTS):
+            continue
+        own_t, residual = footpoints(fit.points, fit.spine, fit.radius, closed=fit.closed)
+        own = ~is_stray(residual, fit.eq6)
+        before = np.median(angular_coverage(fit.points[own], fit.spine, own_t[own]))
+        after = np.median(angular_coverage(np.vstack([fit.points[own], mine]), fit.spine, np.r_[own_t[own], t]))
+        if after - before >= CONTINUED_DEGREES:
+            whys[i] = (f"its surface goes on past the {before:.0f} degrees its points cover, off the tube "
+                       f"({len(mine) / on[i]:.0%} as many points lie beside it as on it): an oval or flattened "
+                       "section, not a round tube")
+    return whys
 
 
 #: After the fits, the points on no tube that lie beside a tube's surface, where the paper's stages took
