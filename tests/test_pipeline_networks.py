@@ -495,20 +495,28 @@ def test_a_fit_grows_past_an_end_where_the_thin_set_strays_sideways():
     assert np.abs(fit.spine(np.linspace(0.0, 1.0, 50))[:, :2]).max() < 0.02
 
 
+def _tube_along_z(thin_to: float, length: float, n: int):
+    """A skeleton branch along the z axis from 0 to ``thin_to`` (vertices half a radius apart), and ``n``
+    points on the tube of radius 1 about it from z = 0 to ``length``, with noise of 0.005."""
+    from canalsurf.skeleton import SkeletonBranch
+
+    z = np.linspace(0.0, thin_to, int(round(2 * thin_to)) + 1)
+    branch = SkeletonBranch(np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), np.full(len(z), 4.0),
+                            np.ones(len(z)), (None, None))
+    rng = np.random.default_rng(0)
+    angle, height = rng.uniform(0.0, 2 * np.pi, n), rng.uniform(0.0, length, n)
+    return branch, np.column_stack([np.cos(angle), np.sin(angle), height]) + rng.normal(0.0, 0.005, (n, 3))
+
+
 def test_a_fit_grows_on_to_the_end_of_a_tube_its_thin_set_covers_a_tenth_of():
     """A tube of radius 1 from z = 0 to 30 whose thin set stops at z = 3 (a thin pipe's thin set, tangled
     where it touched its wider neighbours, stopped so in a random bundle of touching pipes).  Each round of
     growth takes the points a radius past the fit's end: after MAX_GROW_ROUNDS the fit stopped near z = 12,
     18 radii short of the tube's end with nothing to show it.  Once the network is settled, it grows on."""
     from canalsurf.pipeline import _fit_network
-    from canalsurf.skeleton import Skeleton, SkeletonBranch
+    from canalsurf.skeleton import Skeleton
 
-    z = np.linspace(0.0, 3.0, 7)
-    branch = SkeletonBranch(np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), np.full(7, 4.0),
-                            np.ones(7), (None, None))
-    rng = np.random.default_rng(0)
-    angle, height = rng.uniform(0.0, 2 * np.pi, 30_000), rng.uniform(0.0, 30.0, 30_000)
-    points = np.column_stack([np.cos(angle), np.sin(angle), height]) + rng.normal(0.0, 0.005, (30_000, 3))
+    branch, points = _tube_along_z(3.0, 30.0, 30_000)
     _, (fit,) = _fit_network(points, Skeleton([branch], np.empty((0, 3)), 0.5), kind="pipe", refine=True,
                              noise=0.005, quantum=0.0, curved=np.ones(30_000, bool), kappa=np.ones(30_000))
     ends = np.sort(fit.spine(np.array([0.0, 1.0]))[:, 2])
@@ -524,14 +532,9 @@ def test_a_fit_whose_growth_fails_keeps_the_tube_it_grew_from(monkeypatch):
     import canalsurf.pipeline as pipeline
     from canalsurf.errors import ReconstructionError
     from canalsurf.pipeline import _Estimates, _Fittable, _first_guess, _fit_one
-    from canalsurf.skeleton import Skeleton, SkeletonBranch
+    from canalsurf.skeleton import Skeleton
 
-    z = np.linspace(0.0, 5.0, 11)
-    branch = SkeletonBranch(np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), np.full(11, 4.0),
-                            np.ones(11), (None, None))
-    rng = np.random.default_rng(0)
-    angle, height = rng.uniform(0.0, 2 * np.pi, 20_000), rng.uniform(0.0, 8.0, 20_000)
-    points = np.column_stack([np.cos(angle), np.sin(angle), height]) + rng.normal(0.0, 0.005, (20_000, 3))
+    branch, points = _tube_along_z(5.0, 8.0, 20_000)
     fit_branch, sizes = pipeline._fit_branch, []
 
     def failing_to_grow(pts, guess, **kwargs):
