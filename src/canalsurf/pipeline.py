@@ -1800,6 +1800,40 @@ def _grown_into(fits: list, skel: Skeleton, dropped: list) -> list:
     return out
 
 
+#: A branch left out is a fragment of a fitted tube's own thin set when its thin points lie within this many
+#: radii past one of the tube's open ends, inside the tube continued straight (with the assign band's
+#: margin), and its radius is less than FRAGMENT_RADIUS_SHARE of the tube's.  (In a random bundle, a
+#: 2-point stub a ninth of its tube's radius, where the tube's end stopped a radius short; on a tree, the
+#: limbs left out beside an end were wider than the branch, no part of it.)
+DROPPED_AHEAD_RADII = 2.0
+FRAGMENT_RADIUS_SHARE = 0.5
+
+
+def _fragments_ahead(fits: list, skel: Skeleton, drop: list) -> list:
+    """Indices of the fitted branches with an open end that a ``drop``ped branch lies ahead of, a fragment
+    of their own tube (DROPPED_AHEAD_RADII, FRAGMENT_RADIUS_SHARE): while that branch was there its
+    stand-in took the tube's points about it, and the end stopped where they began."""
+    out = []
+    for k, fit in enumerate(fits):
+        if not fit or fit.closed:
+            continue
+        thin = [skel.branches[i].points for i in drop
+                if np.median(skel.branches[i].radius) < FRAGMENT_RADIUS_SHARE * fit.eq6]
+        if not thin:
+            continue
+        ahead = np.concatenate(thin)
+        for e in (0, 1):
+            if skel.branches[k].ends[e] is not None:
+                continue
+            p, d = _end_frame(fit.spine, e)
+            along = (ahead - p) @ d
+            off = np.linalg.norm(ahead - p - along[:, None] * d, axis=1)
+            if np.any((along > 0) & (along < DROPPED_AHEAD_RADII * fit.eq6) & (off < (1 + ASSIGN_RADII) * fit.eq6)):
+                out.append(k)
+                break
+    return out
+
+
 def _as_branch(spine: BSpline, radius: BSpline, branch: SkeletonBranch) -> SkeletonBranch:
     """A skeleton branch along ``spine`` in place of ``branch`` (its ends, its thin points spread evenly
     along it): the estimate the branch is fitted again from."""
@@ -2142,6 +2176,13 @@ def _fit_network(points: np.ndarray, skel: Skeleton, *, kind: str, refine: bool,
                                       " — check the input is a scan of pipes or canals")
         if drop:
             log.info("%d of %d branches are no tube (left out): %s", len(drop), len(fits), reason)
+            if not last:
+                # A fragment of a tube's thin set left out held points the tube's open end would have
+                # grown into: the tube is fitted again, from its fit, without it.
+                for k in _fragments_ahead(fits, skel, drop):
+                    skel = replace(skel, branches=[_as_branch(fits[k].spine, fits[k].radius, b) if n == k else b
+                                                   for n, b in enumerate(skel.branches)])
+                    fits[k] = None
         skel, origin = without_branches(skel, drop)
         skel, unchanged = with_tees_mended(skel)
         origin = [None if u is None else origin[u] for u in unchanged]
