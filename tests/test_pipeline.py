@@ -155,7 +155,7 @@ def test_a_pass_that_explains_little_of_its_subset_runs_again_denser(monkeypatch
 
     def stages(scan, *args, **kwargs):
         sizes.append(len(scan.pts))
-        return SimpleNamespace(scan=scan, curved=np.arange(10))
+        return SimpleNamespace(scan=scan, curved=np.arange(10), in_a_spot=False)
 
     monkeypatch.setattr(pipeline, "_paper_stages", stages)
     monkeypatch.setattr(pipeline, "_explained_share", lambda run: next(shares))
@@ -164,6 +164,24 @@ def test_a_pass_that_explains_little_of_its_subset_runs_again_denser(monkeypatch
     assert sizes == [5_000, 20_000, 80_000]
     sizes.clear()
     pipeline._resolved(scan, None, {}, densify=False)
+    assert sizes == [5_000]
+
+
+def test_a_ball_is_refused_on_the_first_subset(monkeypatch):
+    """A ball shrinks to its middle: its thin set gathers in one spot, of which no denser subset makes a
+    curve, and each costs more than the last (its points all meet at once, each within reach of all the
+    others; 100,000 points took minutes and gigabytes).  It is refused on the first subset."""
+    from canalsurf import pipeline
+
+    sizes, stages = [], pipeline._paper_stages
+
+    def counted(scan, *args, **kwargs):
+        sizes.append(len(scan.pts))
+        return stages(scan, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "_paper_stages", counted)
+    with pytest.raises(canalsurf.ReconstructionError, match="gathered in one spot"):
+        canalsurf.reconstruct(_sphere(20_000) + np.random.default_rng(1).normal(0.0, 0.0025, (20_000, 3)))
     assert sizes == [5_000]
 
 

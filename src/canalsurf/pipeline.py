@@ -331,6 +331,13 @@ class _Pass:
         except ReconstructionError:
             return None
 
+    @property
+    def in_a_spot(self) -> bool:
+        """Whether the thin set gathered in a spot narrower than the distances its points came from (a ball
+        or a blob, shrunk to its middle): no denser subset or finer scale makes a curve of it."""
+        return len(self.thin) > 0 and (float(np.linalg.norm(np.ptp(self.thin, axis=0)))
+                                       < SPOT_RADII * float(np.median(self.r_i)))
+
     @cached_property
     def nodes(self) -> tuple | None:
         """A KD-tree of the nodes of the skeleton of the thin set, and their radii (None: it has none).
@@ -409,6 +416,12 @@ def _paper_stages(scan: _Scan, k, given: dict, *, kind: str, stop: str, neighbou
     return _Pass(scan, nrm, r0, p, curved, kappa, nbr, sr, kept, thin, r_i)
 
 
+#: A pass's thin set gathered in one spot (a ball shrunk to its middle) when it spans less than this many
+#: times the median distance its points came from: half the shortest tree the skeleton keeps
+#: (skeleton.MIN_TREE_RADII).  A ball's spanned 0.33 - 0.38 of it, a tube as long as its radius 0.94.
+SPOT_RADII = 0.5
+
+
 #: After the paper's stages, a point of the scan is explained when it lies within this many of the local
 #: radius of the skeleton found (inside the tube, or on its surface with a quarter radius to spare).
 EXPLAINED_RADII = 1.25
@@ -467,6 +480,11 @@ def _resolved(scan: _Scan, k, given: dict, *, densify: bool, **options) -> _Pass
         else:
             if last:
                 return run
+            if run.in_a_spot:
+                # Each denser subset of a ball costs more than the last (its points meet all at once, every
+                # one within reach of every other) and gathers in the same spot.
+                raise ReconstructionError("the shrunk cloud gathered in one spot, not along a curve (a ball or a "
+                                          "blob) — the input is not a tube")
             share = _explained_share(run)
             if share >= MIN_EXPLAINED_SHARE:
                 return run
